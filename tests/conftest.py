@@ -1,0 +1,55 @@
+"""Shared helpers: scenes built in code, and a network run that records its trace in memory."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from uwsimnet_zenoh.engine.network import Network
+from uwsimnet_zenoh.scene.model import Channel, Device, ErrorModel, Flow, MacSpec, Scene, Simulation, Vehicle
+
+
+def device(dev_id: str, address: int, ch: int = 0, rx: int | None = None, **kw: Any) -> Device:
+    error = kw.pop("error", None)
+    mac = kw.pop("mac", None)
+    extra = {}
+    if error is not None:
+        extra["error"] = ErrorModel(expr=error[0], unit=error[1]) if isinstance(error, tuple) else \
+            ErrorModel(expr=error, unit="packet")
+    if mac is not None:
+        extra["mac"] = MacSpec(name=mac[0], params=mac[1]) if isinstance(mac, tuple) else MacSpec(name=mac)
+    return Device(dccomms_id=dev_id, address=address, tx_channel=ch, rx_channel=ch if rx is None else rx,
+                  **extra, **kw)
+
+
+def scene(vehicles: list[Vehicle], flows: list[Flow] = (), channels: list[Channel] | None = None,
+          duration: float = 10.0, seed: int = 1) -> Scene:
+    return Scene(name="test", simulation=Simulation(duration=duration, seed=seed),
+                 channels=tuple(channels or [Channel(id=0, prop_s_per_m=1 / 1500, min_prop_s=0.0)]),
+                 vehicles=tuple(vehicles), flows=tuple(flows))
+
+
+def vehicle(name: str, pos: tuple[float, float, float], *devices: Device, **kw: Any) -> Vehicle:
+    return Vehicle(name=name, position=pos, devices=tuple(devices), **kw)
+
+
+class Recorded:
+    """A network plus its trace records, kept in memory."""
+
+    def __init__(self, sc: Scene, **kw: Any) -> None:
+        self.net = Network(sc, **kw)
+        self.records: list[dict] = []
+        self.net.tracer.add(self.records.append)
+
+    def run(self, until: float | None = None) -> Recorded:
+        self.net.run(until)
+        return self
+
+    def ev(self, ev: str, **match: Any) -> list[dict]:
+        return [r for r in self.records if r["ev"] == ev and all(r.get(k) == v for k, v in match.items())]
+
+
+@pytest.fixture
+def record():
+    return Recorded

@@ -1,0 +1,1 @@
+"""uwsimnet-zenoh: underwater network simulation for HIL robotics, on Zenoh."""

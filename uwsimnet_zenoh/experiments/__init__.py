@@ -1,0 +1,1 @@
+"""The paper's experiments and reference scenarios, runnable as `python -m uwsimnet_zenoh.experiments`."""

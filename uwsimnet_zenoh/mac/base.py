@@ -1,0 +1,142 @@
+"""The MAC interface (sans-IO) and the protocol registry.
+
+A MAC is a plain state machine.  The modem tells it what happened (a frame waits in the FIFO, our
+transmission ended, a frame arrived intact, a reception failed) and the MAC answers through its
+context: take the FIFO head, transmit, set timers, deliver to the application, report a status.  It
+never sees a clock other than `ctx.now` nor any I/O, so the same MAC runs in virtual and real time.
+
+Write your own: subclass `Mac`, then name it `module:Class` in `<macProtocol><name>` or register it
+under the entry-point group `uwsimnet.mac`.  docs/mac.md walks through an example.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+from collections.abc import Callable
+from importlib.metadata import entry_points
+from typing import TYPE_CHECKING, Any, Protocol
+
+if TYPE_CHECKING:
+    from ..engine.scheduler import Event
+    from ..phy.frame import Frame
+
+
+class MacContext(Protocol):
+    """What a modem offers its MAC (implemented by `phy.modem.Modem`)."""
+
+    address: int
+    id: str
+    half_duplex: bool
+    fifo: Any                                    # the tx FIFO (a deque of Frame); read it, pop via fifo_pop
+
+    @property
+    def now(self) -> float: ...
+    @property
+    def phy_busy(self) -> bool: ...              # our transmitter is processing or on air
+    def fifo_peek(self) -> Frame | None: ...
+    def fifo_pop(self) -> Frame | None: ...
+    def transmit(self, frame: Frame) -> None: ...  # hand a frame to the PHY (only when not phy_busy)
+    def channel_busy(self) -> bool: ...          # carrier sense: energy heard at our receiver now
+    def channel_busy_until(self) -> float: ...
+    def deliver(self, frame: Frame) -> None: ...   # up to the application (after the rx delay)
+    def drop(self, frame: Frame, reason: str) -> None: ...   # a frame we give up on (traced + status)
+    def status(self, frame: Frame, event: str) -> None: ...  # sent | acked ... for the application
+    def timer(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event: ...
+    def tx_time(self, size: int) -> float: ...
+    def max_prop_delay(self) -> float: ...
+    def ctrl_frame(self, dst: int, size: int, info: dict, about: Frame | None = None) -> Frame: ...
+    def random(self) -> float: ...
+
+
+class Mac:
+    """Base class; the defaults make a MAC that never overhears and ignores failed receptions."""
+
+    overhear = False
+    """True if the MAC must see intact frames addressed to others (e.g. RTS/CTS for deferral)."""
+
+    def __init__(self, ctx: MacContext, params: dict[str, str]) -> None:
+        self.ctx = ctx
+        self.params = params
+
+    def ready(self) -> bool:
+        """Would take a frame offered now straight into service (it then does not count in the FIFO)?"""
+        return False
+
+    def on_queue(self) -> None:
+        """A frame was added to the FIFO."""
+
+    def on_tx_done(self, frame: Frame) -> None:
+        """The last bit of `frame` left our transmitter."""
+
+    def on_rx(self, frame: Frame) -> None:
+        """`frame` arrived intact and is addressed to us (or broadcast)."""
+
+    def on_overhear(self, frame: Frame) -> None:
+        """`frame` arrived intact but is addressed to another node (only if `overhear`)."""
+
+    def on_rx_error(self, frame: Frame, reason: str) -> None:
+        """A frame addressed to us was lost (prop, col, mult, range)."""
+
+    def close(self) -> None:
+        """The modem leaves the simulation: give back what you hold (drop with a reason)."""
+
+    def param(self, name: str, default: float) -> float:
+        """A numeric parameter of `<macProtocol>`, with a clear error if it is not a number."""
+        raw = self.params.get(name)
+        if raw is None:
+            return default
+        try:
+            return float(raw)
+        except ValueError:
+            raise ValueError(f"macProtocol {name}: expected a number, got {raw!r}") from None
+
+
+_BUILTIN: dict[str, str] = {}
+
+
+def register(*names: str) -> Callable[[type[Mac]], type[Mac]]:
+    """Class decorator naming a built-in MAC (case-insensitive)."""
+    def deco(cls: type[Mac]) -> type[Mac]:
+        for n in names:
+            _BUILTIN[n.lower()] = f"{cls.__module__}:{cls.__qualname__}"
+        return cls
+    return deco
+
+
+def builtin_names() -> list[str]:
+    _load_builtins()
+    return sorted(_BUILTIN)
+
+
+def _load_builtins() -> None:
+    importlib.import_module("uwsimnet_zenoh.mac.nomac")
+    for mod in ("aloha", "sfama"):
+        with contextlib.suppress(ModuleNotFoundError):
+            importlib.import_module(f"uwsimnet_zenoh.mac.{mod}")
+
+
+def resolve(name: str) -> type[Mac]:
+    """A MAC class from a built-in name, an entry point of group `uwsimnet.mac`, or `module:Class`."""
+    _load_builtins()
+    key = name.strip().lower()
+    spec = _BUILTIN.get(key)
+    if spec is None:
+        for ep in entry_points(group="uwsimnet.mac"):
+            if ep.name.lower() == key:
+                cls = ep.load()
+                break
+        else:
+            if ":" not in name:
+                raise ValueError(f"unknown MAC protocol {name!r} (built-in: {', '.join(builtin_names())};"
+                                 " or give module:Class)")
+            spec = name.strip()
+    if spec is not None:
+        mod_name, _, cls_name = spec.partition(":")
+        try:
+            cls = getattr(importlib.import_module(mod_name), cls_name)
+        except (ImportError, AttributeError) as e:
+            raise ValueError(f"cannot load MAC protocol {name!r}: {e}") from None
+    if not (isinstance(cls, type) and issubclass(cls, Mac)):
+        raise ValueError(f"MAC protocol {name!r} is not a subclass of uwsimnet_zenoh.mac.base.Mac")
+    return cls

@@ -1,0 +1,194 @@
+"""A simulated modem (ns-3's NetDevice + Phy): tx FIFO, timing, duplex, and the glue to its MAC.
+
+Timing of one frame (docs/phy-model.md):
+    enq ──FIFO wait──▶ taken by the MAC ──intrinsic tx delay + jitter──▶ tx (first bit on air)
+        ──propagation (at tx start)──▶ first bit at receiver ──8·L/bitrate──▶ last bit
+        ──intrinsic rx delay + jitter──▶ rx (delivered to the application, in order)
+The transmitter is busy from the moment it takes the frame until the last bit leaves.  Jitter is a
+Gaussian added to the intrinsic delay, truncated so the total never goes below zero.
+"""
+
+from __future__ import annotations
+
+import random
+from collections import deque
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from ..mac.base import Mac, resolve
+from .error import RateErrorModel
+from .frame import Frame
+
+if TYPE_CHECKING:
+    from ..engine.scheduler import Event, Scheduler
+    from ..scene.model import Device
+    from ..trace.events import Tracer
+    from .channel import Channel
+
+RxCallback = Callable[["Modem", Frame, float], None]
+StatusCallback = Callable[["Modem", Frame, str, "str | None", float], None]
+
+
+class Modem:
+    def __init__(self, cfg: Device, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
+                 tx_channel: Channel, rx_channel: Channel, seeds: Callable[[str, str], int]) -> None:
+        self.cfg = cfg
+        self.id = cfg.dccomms_id
+        self.address = cfg.address
+        self.vehicle = vehicle
+        self.vehicle_index = vehicle_index
+        self.sched = sched
+        self.tracer = tracer
+        self.tx_channel = tx_channel
+        self.rx_channel = rx_channel
+        self.bitrate = cfg.bitrate
+        self.header_bytes = cfg.header_bytes
+        self.min_distance = cfg.min_distance
+        self.max_distance = cfg.max_distance
+        self.error = RateErrorModel(cfg.error.expr, cfg.error.unit)
+        self.fifo: deque[Frame] = deque()
+        self.fifo_bytes = 0
+        self.fifo_cap = cfg.tx_fifo_bytes
+        self.phy_busy = False
+        self.half_duplex = tx_channel is rx_channel
+        self._seq = 0
+        self._last_delivery = 0.0
+        self._rx_dist = 0.0
+        self.loss_random = random.Random(seeds("loss", self.id)).random
+        self._jitter = random.Random(seeds("jitter", self.id))
+        self.random = random.Random(seeds("mac", self.id)).random
+        self.on_receive: list[RxCallback] = []
+        self.on_status: list[StatusCallback] = []
+        self.counters = {"enq": 0, "tx": 0, "rx": 0, "drop": 0}
+        self.mac: Mac = resolve(cfg.mac.name)(self, dict(cfg.mac.params))
+        self.rx_slot = rx_channel.attach(self)
+
+    # -- the application side ------------------------------------------------------------------
+    def send(self, dst: int, payload: int, *, data: bytes | None = None, flow: str | None = None,
+             tag: Any = None) -> Frame:
+        """An application (or flow) offers `payload` bytes for `dst`; the frame ends traced either way."""
+        now = self.sched.now
+        frame = Frame(self.address, dst, self._seq, payload + self.header_bytes, payload, data=data,
+                      flow=flow, t_enq=now, tag=tag, dev=self.id)
+        self._seq += 1
+        self.counters["enq"] += 1
+        direct = not self.fifo and self.mac.ready()
+        if frame.size > self.cfg.max_frame_bytes:
+            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
+            self.drop(frame, "size")
+        elif not direct and self.fifo_bytes + frame.size > self.fifo_cap:
+            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
+            self.drop(frame, "fifo")
+        else:
+            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame,
+                             fifo=self.fifo_bytes + (0 if direct else frame.size))
+            self.fifo.append(frame)
+            self.fifo_bytes += frame.size
+            self.status(frame, "queued")
+            self.mac.on_queue()
+        return frame
+
+    # -- what the MAC may do (MacContext) -------------------------------------------------------
+    @property
+    def now(self) -> float:
+        return self.sched.now
+
+    def fifo_peek(self) -> Frame | None:
+        return self.fifo[0] if self.fifo else None
+
+    def fifo_pop(self) -> Frame | None:
+        if not self.fifo:
+            return None
+        frame = self.fifo.popleft()
+        self.fifo_bytes -= frame.size
+        return frame
+
+    def transmit(self, frame: Frame) -> None:
+        if self.phy_busy:
+            raise RuntimeError(f"{self.id}: transmit while the transmitter is busy ({frame})")
+        self.phy_busy = True
+        frame.tries += 1
+        cfg = self.cfg
+        d = cfg.intrinsic_tx_s
+        if cfg.jitter_tx_s > 0:
+            d = max(0.0, self._jitter.gauss(d, cfg.jitter_tx_s))
+        if d > 0:
+            self.sched.after(d, self._on_air, frame)
+        else:
+            self._on_air(frame)
+
+    def _on_air(self, frame: Frame) -> None:
+        now = self.sched.now
+        frame.t_tx = now
+        self.counters["tx"] += 1
+        self.tracer.emit(now, "tx", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
+        dur = frame.size * 8.0 / self.bitrate
+        self.tx_channel.transmit(self, frame, dur)
+        self.sched.after(dur, self._tx_end, frame)
+
+    def _tx_end(self, frame: Frame) -> None:
+        self.phy_busy = False
+        self.mac.on_tx_done(frame)
+
+    def channel_busy(self) -> bool:
+        return self.rx_channel.busy(self.rx_slot)
+
+    def channel_busy_until(self) -> float:
+        return self.rx_channel.busy_until(self.rx_slot)
+
+    def deliver(self, frame: Frame) -> None:
+        cfg = self.cfg
+        d = cfg.intrinsic_rx_s
+        if cfg.jitter_rx_s > 0:
+            d = max(0.0, self._jitter.gauss(d, cfg.jitter_rx_s))
+        t = max(self.sched.now + d, self._last_delivery)   # a modem hands frames up in order
+        self._last_delivery = t
+        if t > self.sched.now:
+            self.sched.at(t, self._deliver, frame, self._rx_dist)
+        else:
+            self._deliver(frame, self._rx_dist)
+
+    def _deliver(self, frame: Frame, dist: float) -> None:
+        now = self.sched.now
+        self.counters["rx"] += 1
+        self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist)
+        for cb in self.on_receive:
+            cb(self, frame, now)
+
+    def drop(self, frame: Frame, reason: str) -> None:
+        self.counters["drop"] += 1
+        self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason,
+                         fifo=self.fifo_bytes)
+        self.status(frame, "dropped", reason)
+
+    def status(self, frame: Frame, event: str, reason: str | None = None) -> None:
+        for cb in self.on_status:
+            cb(self, frame, event, reason, self.sched.now)
+
+    def timer(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event:
+        return self.sched.after(delay, fn, *args)
+
+    def tx_time(self, size: int) -> float:
+        return size * 8.0 / self.bitrate
+
+    def max_prop_delay(self, distance: float | None = None) -> float:
+        return self.tx_channel.max_prop_delay(self.max_distance if distance is None else distance)
+
+    def ctrl_frame(self, dst: int, size: int, info: dict, about: Frame | None = None) -> Frame:
+        """A MAC control frame (RTS, CTS, ACK): kind ctrl, counted for the flow it serves."""
+        return Frame(self.address, dst, about.seq if about else -1, size, 0,
+                     flow=about.flow if about else None, kind="ctrl", t_enq=self.sched.now,
+                     dev=self.id, info=info)
+
+    # -- the PHY side --------------------------------------------------------------------------
+    def phy_received(self, frame: Frame, dist: float) -> None:
+        """Called by the channel: `frame` (for us or broadcast) arrived intact."""
+        self._rx_dist = dist
+        self.mac.on_rx(frame)
+
+    def close(self) -> None:
+        """Leave the simulation: every frame still held ends with a drop (reason `removed`)."""
+        self.mac.close()
+        while self.fifo:
+            self.drop(self.fifo_pop(), "removed")
+        self.rx_channel.detach(self)

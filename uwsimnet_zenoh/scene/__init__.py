@@ -1,0 +1,33 @@
+"""Scene files: the XML vocabulary (UWSim-NET legacy + native extensions) and the validated models."""
+
+from .load import SceneError, load_scene, load_scene_text
+from .model import (
+    BROADCAST,
+    Channel,
+    Device,
+    ErrorModel,
+    Flow,
+    MacSpec,
+    Scene,
+    Simulation,
+    Tracing,
+    Vehicle,
+    Waypoint,
+)
+
+__all__ = [
+    "BROADCAST",
+    "Channel",
+    "Device",
+    "ErrorModel",
+    "Flow",
+    "MacSpec",
+    "Scene",
+    "SceneError",
+    "Simulation",
+    "Tracing",
+    "Vehicle",
+    "Waypoint",
+    "load_scene",
+    "load_scene_text",
+]

@@ -1,0 +1,706 @@
+"""Per-flow metrics and the conservation check, computed from a JSONL trace (docs/trace-format.md).
+
+One pass over the events with state keyed by (transmitter dccommsId, seq), then one pass over the
+frames seen: time and memory are linear in the trace.  Everything here is pure: files are only read.
+
+    meta, events = read_trace("run.jsonl")
+    a = analyse("run.jsonl")            # one pass: a.flows (FlowMetrics per flow) + a.conservation
+    print(format_text(a.flows))
+    assert a.conservation == [] and not a.conservation.in_flight
+
+`flow_metrics()` and `conservation()` are the same pass, returning one half each.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import math
+from array import array
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import asdict, dataclass, field
+from os import PathLike
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from rich.table import Table
+
+BROADCAST = 255
+EVENTS = frozenset({"enq", "tx", "rx", "drop"})
+TX_REASONS = frozenset({"fifo", "retry", "size", "removed"})
+"""Drop reasons that happen at the transmitter (used only when the trace cannot tell by itself)."""
+RX_REASONS = frozenset({"prop", "col", "mult", "range", "nopose", "duplex"})
+"""Drop reasons that happen at a receiver (ditto)."""
+DEFAULT_HORIZON = 60.0
+"""A transmitted frame with no outcome whose last tx is this close (s) to the end is in flight."""
+
+Source = str | PathLike[str] | Iterable[dict[str, Any]]
+
+
+class TraceError(ValueError):
+    """A trace that cannot be read; the message is one line, `file:line: what`."""
+
+
+# -- reading ------------------------------------------------------------------------------------
+def _open(path: Path) -> IO[str]:
+    if path.suffix == ".gz":
+        return gzip.open(path, "rt", encoding="utf-8")
+    return open(path, encoding="utf-8")
+
+
+def _is_num(x: Any) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _check(rec: Any, where: str) -> dict[str, Any]:
+    """The record if it is a usable trace record, else TraceError naming `where`."""
+    if not isinstance(rec, dict):
+        raise TraceError(f"{where}: expected a JSON object, got {type(rec).__name__}")
+    ev = rec.get("ev")
+    if not isinstance(ev, str):
+        raise TraceError(f"{where}: missing or non-string 'ev'")
+    if ev in EVENTS:
+        t = rec.get("t")
+        if not _is_num(t) or not math.isfinite(t):
+            raise TraceError(f"{where}: {ev} event: missing or non-numeric 't'")
+        for k in ("src", "seq", "size"):
+            if not _is_int(rec.get(k)):
+                raise TraceError(f"{where}: {ev} event: missing or non-integer {k!r}")
+        if not isinstance(rec.get("dev"), str):
+            raise TraceError(f"{where}: {ev} event: missing or non-string 'dev'")
+        if "ch" not in rec or not isinstance(rec["ch"], int | str):
+            raise TraceError(f"{where}: {ev} event: missing 'ch'")
+        if "dst" in rec and not _is_int(rec["dst"]):
+            raise TraceError(f"{where}: {ev} event: non-integer 'dst'")
+        flow = rec.get("flow")
+        if flow is not None and not isinstance(flow, str):
+            raise TraceError(f"{where}: {ev} event: 'flow' must be a string or null")
+        if ev == "drop" and not isinstance(rec.get("reason"), str):
+            raise TraceError(f"{where}: drop event without a string 'reason'")
+    return rec
+
+
+def _parse(line: str, path: Path | str, lineno: int) -> dict[str, Any]:
+    where = f"{path}:{lineno}"
+    try:
+        rec = json.loads(line)
+    except json.JSONDecodeError as e:
+        raise TraceError(f"{where}: invalid JSON: {e.msg} (column {e.colno})") from None
+    return _check(rec, where)
+
+
+def _events(path: Path, skip: int) -> Iterator[dict[str, Any]]:
+    try:
+        with _open(path) as fh:
+            for lineno, line in enumerate(fh, 1):
+                if lineno == skip or not line.strip():
+                    continue
+                yield _parse(line, path, lineno)
+    except (OSError, UnicodeDecodeError) as e:
+        raise TraceError(f"{path}: cannot read: {e}") from None
+
+
+def read_trace(path: str | PathLike[str]) -> tuple[dict[str, Any], Iterator[dict[str, Any]]]:
+    """(meta, events) of a JSONL trace (`.gz` is read transparently).
+
+    `meta` is the first line if it is an `ev: meta` record, else `{}`.  `events` is a lazy iterator
+    over the remaining records (unknown event kinds included: consumers skip them); a malformed line
+    raises `TraceError("file:line: ...")` when the iterator reaches it.
+    """
+    p = Path(path)
+    meta: dict[str, Any] = {}
+    skip = 0
+    try:
+        with _open(p) as fh:
+            for lineno, line in enumerate(fh, 1):
+                if not line.strip():
+                    continue
+                rec = _parse(line, p, lineno)
+                if rec["ev"] == "meta":
+                    meta, skip = rec, lineno
+                break
+    except (OSError, UnicodeDecodeError) as e:
+        raise TraceError(f"{p}: cannot read: {e}") from None
+    return meta, _events(p, skip)
+
+
+def _iter_checked(records: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+    for i, rec in enumerate(records, 1):
+        yield _check(rec, f"<events>:{i}")
+
+
+def open_source(src: Source, meta: dict[str, Any] | None = None) -> tuple[dict[str, Any], Iterator[dict]]:
+    """(meta, events) from a path or from an iterable of records (whose first may be the meta)."""
+    if isinstance(src, str | PathLike):
+        m, events = read_trace(src)
+        return (m if meta is None else meta), events
+    it = _iter_checked(src)
+    first = next(it, None)
+    if first is None:
+        return (meta or {}), iter(())
+    if first["ev"] == "meta":
+        return (first if meta is None else meta), it
+    return (meta or {}), _chain(first, it)
+
+
+def _chain(first: dict[str, Any], rest: Iterator[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+    yield first
+    yield from rest
+
+
+# -- who is who ---------------------------------------------------------------------------------
+class DeviceMap:
+    """Resolves (channel, address) to dccommsIds and names flows.
+
+    The transmitter of a frame is learnt from the `dev` of enq/tx events (the same address may exist
+    on different channels); the meta's devices are the fallback for frames whose transmitter-side
+    events are missing.
+    """
+
+    def __init__(self, meta: Mapping[str, Any] | None = None) -> None:
+        self.tx: dict[tuple[Any, int], str] = {}
+        self._meta_tx: dict[tuple[Any, int], str] = {}
+        self._meta_rx: dict[tuple[Any, int], str] = {}
+        self.header: dict[str, int] = {}
+        devices = (meta or {}).get("devices") or {}
+        if isinstance(devices, Mapping):
+            for dev, d in devices.items():
+                if not isinstance(d, Mapping):
+                    continue
+                addr = d.get("address")
+                if "tx_channel" in d:
+                    self._meta_tx.setdefault((d["tx_channel"], addr), dev)
+                if "rx_channel" in d:
+                    self._meta_rx.setdefault((d["rx_channel"], addr), dev)
+                hb = d.get("header_bytes")
+                self.header[dev] = hb if _is_int(hb) else 0
+
+    def learn(self, ch: Any, src: int, dev: str) -> None:
+        key = (ch, src)
+        if key not in self.tx:
+            self.tx[key] = dev
+
+    def tx_dev(self, ch: Any, src: int) -> str:
+        """The dccommsId transmitting as `src` on channel `ch` (or `ch:src` if nobody knows)."""
+        dev = self.tx.get((ch, src))
+        if dev is None:
+            dev = self._meta_tx.get((ch, src))
+            if dev is None:
+                dev = f"{ch}:{src}"
+        return dev
+
+    def rx_dev(self, ch: Any, addr: int) -> str | None:
+        """The dccommsId listening as `addr` on channel `ch`, if the meta says."""
+        return self._meta_rx.get((ch, addr))
+
+    def classify_drop(self, rec: Mapping[str, Any]) -> tuple[bool, str]:
+        """(at the transmitter?, transmitter dccommsId) of a drop event."""
+        ch, src, dev = rec["ch"], rec["src"], rec["dev"]
+        known = self.tx.get((ch, src))
+        if known is not None:
+            at_tx = dev == known
+        else:
+            reason = rec["reason"]
+            at_tx = reason in TX_REASONS or (reason not in RX_REASONS and "dist" not in rec)
+        if at_tx:
+            self.learn(ch, src, dev)
+            return True, dev
+        return False, self.tx_dev(ch, src)
+
+    def transmitter(self, rec: Mapping[str, Any]) -> tuple[str, bool]:
+        """(transmitter dccommsId, event happened at the transmitter?) for any frame event."""
+        ev = rec["ev"]
+        if ev == "enq" or ev == "tx":
+            self.learn(rec["ch"], rec["src"], rec["dev"])
+            return rec["dev"], True
+        if ev == "drop":
+            at_tx, dev = self.classify_drop(rec)
+            return dev, at_tx
+        return self.tx_dev(rec["ch"], rec["src"]), False
+
+
+def flow_name(flow: str | None, tx_dev: str) -> str:
+    """Frames of external apps (flow null) are grouped under their transmitter's dccommsId."""
+    return flow if flow is not None else tx_dev
+
+
+# -- results ------------------------------------------------------------------------------------
+@dataclass
+class FlowMetrics:
+    """Metrics of one flow (definitions: docs/trace-format.md, "Report metrics")."""
+
+    name: str
+    src: str | None = None                 # transmitter dccommsId
+    dst: int | None = None                 # destination address (255 = broadcast)
+    payload: int | None = None             # payload bytes per frame from the meta (None: from sizes)
+    window: tuple[float, float] | None = None   # active window [start, end] s
+    enqueued: int = 0
+    sent: int = 0                          # data tx events, retransmissions included
+    unique_sent: int = 0                   # distinct data frames transmitted at least once
+    delivered: int = 0                     # data rx events
+    payload_delivered: int = 0             # bytes
+    payload_offered: int = 0               # bytes enqueued
+    data_bytes_on_air: int = 0
+    ctrl_sent: int = 0                     # ctrl tx events serving this flow
+    ctrl_bytes_on_air: int = 0
+    throughput: float | None = None        # B/s
+    offered: float | None = None           # B/s
+    efficiency: float | None = None        # 0..1
+    delivery_ratio: float | None = None
+    delay_mean: float | None = None        # s
+    delay_median: float | None = None
+    delay_p95: float | None = None
+    jitter: float | None = None
+    drops: dict[str, int] = field(default_factory=dict)        # final outcomes, by reason
+    superseded: dict[str, int] = field(default_factory=dict)   # other data drop events, by reason
+    in_flight: int = 0                     # frames with no outcome at the end of the trace
+
+    @property
+    def bytes_on_air(self) -> int:
+        return self.data_bytes_on_air + self.ctrl_bytes_on_air
+
+    @property
+    def broadcast(self) -> bool:
+        return self.dst == BROADCAST
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["window"] = list(self.window) if self.window is not None else None
+        d["bytes_on_air"] = self.bytes_on_air
+        return d
+
+
+@dataclass(frozen=True)
+class InFlight:
+    """A frame that had no outcome yet when the trace ended."""
+
+    dev: str
+    seq: int
+    flow: str
+    state: str                 # "queued" (never transmitted) | "on air" (transmitted, outcome pending)
+    t_enq: float | None
+    t_tx: float | None         # last transmission
+
+
+class Conservation(list[str]):
+    """The violations of the conservation law (a list of one-line messages: empty = OK), plus the
+    frames still in flight when the trace ended (`in_flight`), which a run cut at `duration` may leave.
+    """
+
+    def __init__(self, violations: Iterable[str] = (), in_flight: Iterable[InFlight] = (),
+                 frames: int = 0, end: float = 0.0, total: int | None = None) -> None:
+        super().__init__(violations)
+        self.in_flight: list[InFlight] = list(in_flight)
+        self.frames = frames          # data frames checked
+        self.end = end                # end of the run used for the in-flight horizon
+        self.total = len(self) if total is None else total   # violations before truncation
+
+    @property
+    def violations(self) -> list[str]:
+        return list(self)
+
+    @property
+    def ok(self) -> bool:
+        return not self
+
+    def __repr__(self) -> str:
+        return (f"Conservation(violations={list(self)!r}, in_flight={len(self.in_flight)},"
+                f" frames={self.frames})")
+
+
+@dataclass
+class Analysis:
+    meta: dict[str, Any]
+    flows: dict[str, FlowMetrics]
+    conservation: Conservation
+
+
+# -- the pass -----------------------------------------------------------------------------------
+class _Frame:
+    __slots__ = ("flow", "ch", "dst", "t_enq", "n_enq", "n_tx", "t_tx", "n_txdrop", "txdrop",
+                 "txdrop_at", "rcv")
+
+    def __init__(self, flow: str, ch: Any, dst: int) -> None:
+        self.flow = flow
+        self.ch = ch
+        self.dst = dst
+        self.t_enq: float | None = None
+        self.n_enq = 0
+        self.n_tx = 0
+        self.t_tx: float | None = None
+        self.n_txdrop = 0
+        self.txdrop: str | None = None
+        self.txdrop_at = 0          # n_tx when the transmitter dropped it
+        # per receiver: [dccommsId, rx events, drop events, last drop reason, n_tx at the last drop];
+        # one receiver (unicast) is kept as that list, several (broadcast) as a dict by dccommsId
+        self.rcv: list[Any] | dict[str, list[Any]] | None = None
+
+    def receiver(self, dev: str) -> list[Any]:
+        rcv = self.rcv
+        if rcv is None:
+            r = self.rcv = [dev, 0, 0, None, 0]
+            return r
+        if isinstance(rcv, list):
+            if rcv[0] == dev:
+                return rcv
+            rcv = self.rcv = {rcv[0]: rcv}
+        r = rcv.get(dev)
+        if r is None:
+            r = rcv[dev] = [dev, 0, 0, None, 0]
+        return r
+
+    def receivers(self) -> list[list[Any]]:
+        rcv = self.rcv
+        if rcv is None:
+            return []
+        return [rcv] if isinstance(rcv, list) else list(rcv.values())
+
+
+class _Acc:
+    __slots__ = ("m", "t_first", "t_first_enq", "t_last", "delays", "prev_delay", "jit_sum", "jit_n",
+                 "drop_events", "intended")
+
+    def __init__(self, m: FlowMetrics) -> None:
+        self.m = m
+        self.t_first: float | None = None
+        self.t_first_enq: float | None = None
+        self.t_last: float | None = None
+        self.delays = array("d")
+        self.prev_delay: float | None = None
+        self.jit_sum = 0.0
+        self.jit_n = 0
+        self.drop_events: dict[str, int] = {}
+        self.intended = 0
+
+
+def _payload_of(acc: _Acc, size: int, tx_dev: str, devs: DeviceMap) -> int:
+    p = acc.m.payload
+    if p is not None:
+        return p
+    return max(0, size - devs.header.get(tx_dev, 0))
+
+
+def _meta_flows(meta: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
+    flows = meta.get("flows") or {}
+    return {k: v for k, v in flows.items() if isinstance(v, Mapping)} if isinstance(flows, Mapping) else {}
+
+
+def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float = DEFAULT_HORIZON,
+            end: float | None = None, limit: int = 1000) -> Analysis:
+    """Per-flow metrics and the conservation check in one pass over a trace (path or records).
+
+    `horizon`: a transmitted frame with no outcome is in flight if its last tx is at or after
+    `end - horizon`, a violation otherwise.  `end`: end of the run (default: max of the meta duration
+    and the last event time).  `limit`: at most this many violation messages are kept (the count of all
+    is `conservation.total`).
+    """
+    meta, events = open_source(src, meta)
+    devs = DeviceMap(meta)
+    mflows = _meta_flows(meta)
+    accs: dict[str, _Acc] = {}
+    for name, f in mflows.items():
+        size = f.get("size")
+        fm = FlowMetrics(name=name, src=f.get("src") if isinstance(f.get("src"), str) else None,
+                         dst=f.get("dst") if _is_int(f.get("dst")) else None,
+                         payload=size if _is_int(size) else None)
+        accs[name] = _Acc(fm)
+    frames: dict[tuple[str, int], _Frame] = {}
+    max_tx_seq: dict[str, int] = {}
+    t_end = -math.inf
+
+    def acc_for(name: str, tx_dev: str, dst: Any) -> _Acc:
+        a = accs.get(name)
+        if a is None:
+            a = accs[name] = _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if _is_int(dst) else None))
+        return a
+
+    for rec in events:
+        ev = rec["ev"]
+        if ev not in EVENTS:
+            continue
+        t = rec["t"]
+        if t > t_end:
+            t_end = t
+        tx_dev, at_tx = devs.transmitter(rec)
+        size = rec["size"]
+        if rec.get("kind", "data") != "data":
+            if ev == "tx":          # control frames only count as bytes on air of the flow they serve
+                a = acc_for(_ctrl_flow(rec, tx_dev, devs, frames), tx_dev, None)
+                a.m.ctrl_sent += 1
+                a.m.ctrl_bytes_on_air += size
+            continue
+
+        key = (tx_dev, rec["seq"])
+        fr = frames.get(key)
+        if fr is None:
+            fr = frames[key] = _Frame(flow_name(rec.get("flow"), tx_dev), rec["ch"], rec.get("dst", -1))
+        a = acc_for(fr.flow, tx_dev, fr.dst)
+        m = a.m
+        if a.t_first is None:
+            a.t_first = t
+        a.t_last = t
+        if m.src is None:
+            m.src = tx_dev
+        if m.dst is None and _is_int(fr.dst) and fr.dst >= 0:
+            m.dst = fr.dst
+
+        if ev == "enq":
+            fr.n_enq += 1
+            if fr.t_enq is None:
+                fr.t_enq = t
+            if a.t_first_enq is None:
+                a.t_first_enq = t
+            m.enqueued += 1
+            m.payload_offered += _payload_of(a, size, tx_dev, devs)
+        elif ev == "tx":
+            fr.n_tx += 1
+            fr.t_tx = t
+            if fr.n_tx == 1:
+                m.unique_sent += 1
+                if key[1] > max_tx_seq.get(tx_dev, -1):
+                    max_tx_seq[tx_dev] = key[1]
+            m.sent += 1
+            m.data_bytes_on_air += size
+        elif ev == "rx":
+            fr.receiver(rec["dev"])[1] += 1
+            m.delivered += 1
+            m.payload_delivered += _payload_of(a, size, tx_dev, devs)
+            if fr.t_enq is not None:
+                d = t - fr.t_enq
+                a.delays.append(d)
+                if a.prev_delay is not None:
+                    a.jit_sum += abs(d - a.prev_delay)
+                    a.jit_n += 1
+                a.prev_delay = d
+        else:   # drop
+            reason = rec["reason"]
+            a.drop_events[reason] = a.drop_events.get(reason, 0) + 1
+            if at_tx:
+                fr.n_txdrop += 1
+                fr.txdrop = reason
+                fr.txdrop_at = fr.n_tx
+            else:
+                r = fr.receiver(rec["dev"])
+                r[2] += 1
+                r[3] = reason
+                r[4] = fr.n_tx
+
+    if end is None:
+        dur = meta.get("duration")
+        end = max(dur if _is_num(dur) else -math.inf, t_end)
+        if not math.isfinite(end):
+            end = 0.0
+    cons = _settle(frames, accs, devs, max_tx_seq, end, horizon, limit)
+    duration = meta.get("duration")
+    flows = {name: _finish(a, mflows.get(name), duration if _is_num(duration) else None)
+             for name, a in accs.items()}
+    return Analysis(meta=meta, flows=flows, conservation=cons)
+
+
+def _ctrl_flow(rec: Mapping[str, Any], tx_dev: str, devs: DeviceMap,
+               frames: Mapping[tuple[str, int], _Frame]) -> str:
+    """The flow a control frame serves: its `flow`, else the data frame it is about (an RTS names the
+    data frame's (src, seq, dst); a CTS/ACK answers with src and dst swapped), else its transmitter."""
+    flow = rec.get("flow")
+    if flow is not None:
+        return flow
+    seq, src, dst, ch = rec["seq"], rec["src"], rec.get("dst"), rec["ch"]
+    fr = frames.get((tx_dev, seq))
+    if fr is not None and (fr.dst == dst or fr.dst == BROADCAST):
+        return fr.flow
+    if _is_int(dst) and dst != BROADCAST:
+        fr = frames.get((devs.tx_dev(ch, dst), seq))
+        if fr is not None and (fr.dst == src or fr.dst == BROADCAST):
+            return fr.flow
+    return tx_dev
+
+
+def _settle(frames: dict[tuple[str, int], _Frame], accs: dict[str, _Acc], devs: DeviceMap,
+            max_tx_seq: dict[str, int], end: float, horizon: float, limit: int) -> Conservation:
+    """Final outcomes per frame (into the flows' drops) and the conservation check."""
+    violations: list[str] = []
+    total = 0
+    in_flight: list[InFlight] = []
+
+    def bad(fr_label: str, msg: str) -> None:
+        nonlocal total
+        total += 1
+        if len(violations) < limit:
+            violations.append(f"{fr_label}: {msg}")
+
+    for (tx_dev, seq), fr in frames.items():
+        a = accs[fr.flow]
+        m = a.m
+        drops = m.drops
+        label = f"{tx_dev} seq {seq} (flow {fr.flow})"
+        rcv = fr.receivers()
+        n_tx = fr.n_tx
+        any_rx = False
+        tx_final = fr.n_txdrop > 0 and fr.txdrop_at == n_tx
+        for rdev, n_rx, n_drop, last_reason, last_at in rcv:
+            if n_rx:
+                any_rx = True
+                if n_rx > 1:
+                    bad(label, f"delivered {n_rx} times at {rdev}")
+            elif n_drop and last_at == n_tx and not tx_final:
+                drops[last_reason] = drops.get(last_reason, 0) + 1
+            if n_rx + n_drop > n_tx:
+                bad(label, f"{n_rx + n_drop} outcomes at {rdev} for {n_tx} transmission(s)")
+        if fr.n_txdrop and not any_rx:
+            drops[fr.txdrop] = drops.get(fr.txdrop, 0) + 1
+        if n_tx:
+            a.intended += len(rcv) if fr.dst == BROADCAST else 1
+
+        if fr.n_enq == 0:
+            bad(label, "no enq record")
+        elif fr.n_enq > 1:
+            bad(label, f"enqueued {fr.n_enq} times")
+        if fr.n_txdrop > 1:
+            bad(label, f"dropped {fr.n_txdrop} times at the transmitter")
+        if fr.n_txdrop and fr.txdrop_at < n_tx:
+            bad(label, f"transmitted after its transmitter-side drop ({fr.txdrop})")
+        if fr.dst != BROADCAST and rcv:
+            if len(rcv) > 1:
+                names = ", ".join(sorted(r[0] for r in rcv))
+                bad(label, f"outcomes at {len(rcv)} receivers ({names}) of a unicast frame")
+            else:
+                addressee = devs.rx_dev(fr.ch, fr.dst)
+                rdev = rcv[0][0]
+                if addressee is not None and rdev != addressee:
+                    bad(label, f"outcome at {rdev}, not at its addressee {addressee}")
+        if not rcv and not fr.n_txdrop:
+            if n_tx == 0:
+                if max_tx_seq.get(tx_dev, -1) > seq:
+                    bad(label, f"never transmitted nor dropped, although later frames of {tx_dev} were sent")
+                else:
+                    in_flight.append(InFlight(tx_dev, seq, fr.flow, "queued", fr.t_enq, None))
+                    m.in_flight += 1
+            elif fr.t_tx is not None and fr.t_tx >= end - horizon:
+                in_flight.append(InFlight(tx_dev, seq, fr.flow, "on air", fr.t_enq, fr.t_tx))
+                m.in_flight += 1
+            else:
+                bad(label, f"transmitted at {fr.t_tx:g} s, no outcome by the end ({end:g} s)")
+    if total > len(violations):
+        violations.append(f"... {total - len(violations)} more violations")
+    return Conservation(violations, in_flight, frames=len(frames), end=end, total=total)
+
+
+def _finish(a: _Acc, mf: Mapping[str, Any] | None, duration: float | None) -> FlowMetrics:
+    m = a.m
+    m.drops = dict(sorted(m.drops.items()))
+    m.superseded = {r: n - m.drops.get(r, 0) for r, n in sorted(a.drop_events.items())
+                    if n - m.drops.get(r, 0) > 0}
+    # active window
+    w0: float | None = None
+    w1: float | None = None
+    if mf is not None:
+        start = mf.get("start")
+        w0 = float(start) if _is_num(start) else 0.0
+        stop = mf.get("stop")
+        stop = float(stop) if _is_num(stop) else None
+        if stop is not None and duration is not None:
+            w1 = min(stop, duration)
+        else:
+            w1 = stop if stop is not None else duration
+    if w1 is None:
+        w0 = a.t_first_enq if a.t_first_enq is not None else a.t_first
+        w1 = a.t_last
+    if w0 is not None and w1 is not None:
+        m.window = (w0, w1)
+        span = w1 - w0
+        if span > 0:
+            m.throughput = m.payload_delivered / span
+            m.offered = m.payload_offered / span
+    on_air = m.bytes_on_air
+    m.efficiency = m.payload_delivered / on_air if on_air > 0 else None
+    m.delivery_ratio = m.delivered / a.intended if a.intended > 0 else None
+    if a.delays:
+        d = np.frombuffer(a.delays, dtype=np.float64)
+        m.delay_mean = float(d.mean())
+        m.delay_median = float(np.median(d))
+        m.delay_p95 = float(np.percentile(d, 95))
+    m.jitter = a.jit_sum / a.jit_n if a.jit_n else None
+    return m
+
+
+def flow_metrics(path_or_events: Source, meta: dict[str, Any] | None = None) -> dict[str, FlowMetrics]:
+    """Per-flow metrics of a trace (path or records); flows of the meta first, in its order."""
+    return analyse(path_or_events, meta).flows
+
+
+def conservation(path_or_events: Source, meta: dict[str, Any] | None = None, *,
+                 horizon: float = DEFAULT_HORIZON, end: float | None = None) -> Conservation:
+    """Violations of the conservation law (a list: empty = OK) with `.in_flight` frames at the end."""
+    return analyse(path_or_events, meta, horizon=horizon, end=end).conservation
+
+
+# -- rendering ----------------------------------------------------------------------------------
+_COLUMNS = ("flow", "src", "dst", "enq", "sent", "uniq", "dlvd", "ratio", "thr B/s", "offer B/s", "eff %",
+            "delay s", "median s", "p95 s", "jitter s", "drops (final)")
+
+
+def _f(x: float | None, digits: int = 3) -> str:
+    if x is None:
+        return "-"
+    return f"{x:.{digits}f}"
+
+
+def _drops_str(d: Mapping[str, int]) -> str:
+    return " ".join(f"{r}:{n}" for r, n in d.items()) or "-"
+
+
+def _row(m: FlowMetrics) -> list[str]:
+    return [m.name, m.src or "-", "-" if m.dst is None else ("bcast" if m.broadcast else str(m.dst)),
+            str(m.enqueued), str(m.sent), str(m.unique_sent), str(m.delivered), _f(m.delivery_ratio),
+            _f(m.throughput, 2), _f(m.offered, 2),
+            _f(None if m.efficiency is None else 100.0 * m.efficiency, 1),
+            _f(m.delay_mean), _f(m.delay_median), _f(m.delay_p95), _f(m.jitter), _drops_str(m.drops)]
+
+
+def format_report(metrics: Mapping[str, FlowMetrics], title: str | None = "Per-flow metrics") -> Table:
+    """A rich Table of the per-flow metrics."""
+    table = Table(title=title)
+    for i, c in enumerate(_COLUMNS):
+        table.add_column(c, justify="left" if i < 2 or i == len(_COLUMNS) - 1 else "right",
+                         no_wrap=i < len(_COLUMNS) - 1)
+    for m in metrics.values():
+        table.add_row(*_row(m))
+    return table
+
+
+def _plain(header: list[str] | tuple[str, ...], rows: list[list[str]], left: set[int]) -> str:
+    widths = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(header)]
+
+    def line(cells: list[str] | tuple[str, ...]) -> str:
+        return "  ".join(c.ljust(w) if i in left else c.rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
+
+    return "\n".join([line(header), "  ".join("-" * w for w in widths)] + [line(r) for r in rows]) + "\n"
+
+
+def format_text(metrics: Mapping[str, FlowMetrics]) -> str:
+    """The per-flow metrics as a plain-text table (no colours, no box characters)."""
+    return _plain(_COLUMNS, [_row(m) for m in metrics.values()], {0, 1, len(_COLUMNS) - 1})
+
+
+def report_json(metrics: Mapping[str, FlowMetrics]) -> dict[str, Any]:
+    """JSON-ready report: `{"version": 1, "flows": {name: FlowMetrics.to_dict()}}`."""
+    return {"version": 1, "flows": {name: m.to_dict() for name, m in metrics.items()}}
+
+
+def markdown_table(header: list[str], rows: list[list[str]]) -> str:
+    """A GitHub-flavoured markdown table (pipes in cells escaped)."""
+    def cells(r: list[str]) -> str:
+        return "| " + " | ".join(c.replace("|", "\\|") for c in r) + " |"
+    rule = "|" + "|".join("---" for _ in header) + "|"
+    return "\n".join([cells(header), rule] + [cells(r) for r in rows]) + "\n"
+
+
+def format_markdown(metrics: Mapping[str, FlowMetrics]) -> str:
+    """The per-flow metrics as a markdown table."""
+    return markdown_table(list(_COLUMNS), [_row(m) for m in metrics.values()])
