@@ -155,6 +155,8 @@ def test_construction() -> None:
 
 def _exact_per(r: float, n: int) -> float:
     """1 - (1 - r)^n in 80-digit decimal arithmetic: the reference the float formula must meet."""
+    if n == 0:
+        return 0.0  # Decimal refuses 0 ** 0
     with localcontext() as ctx:
         ctx.prec = 80
         return float(1 - (1 - Decimal(r)) ** n)

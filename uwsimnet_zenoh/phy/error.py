@@ -13,6 +13,16 @@ computed as ``-expm1(n * log1p(-r))`` so that a tiny rate still gives a loss pro
 Whatever the expression yields is made a probability first: nan -> 1 (an expression that cannot be
 evaluated at this distance, e.g. ``1/(m-3)`` at 3 or ``log(m)`` at 0, loses the frame rather than
 silently delivering it), +inf -> 1, -inf -> 0, then clipped to [0, 1].
+
+Cost of ``per(d, 64)`` in microseconds (same machine and method as in ``phy.expr``)::
+
+    model                        d = ndarray[1]   d = ndarray[256]
+    "6e-13*m^13.7", bit               8.8               8.8
+    "0.01*m", packet                  3.7               5.9
+    "1e-4", bit  (constant)           2.0               2.0
+    "0"  (constant zero)              0.5               0.6
+
+The bit/byte path is one errstate plus seven small in-place ufunc calls after the expression.
 """
 
 from __future__ import annotations
