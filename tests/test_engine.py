@@ -94,3 +94,25 @@ def test_moving_a_vehicle_changes_the_delay_of_the_next_frame():
     rec.net.sched.at(3.0, lambda: rec.net.modems["a"].send(2, 10))
     rec.run()
     assert [r["t"] for r in rec.ev("rx")] == pytest.approx([1.11, 4.01])
+
+
+def test_a_removed_modem_takes_no_more_flow_frames_and_refuses_apps():
+    from uwsimnet_zenoh.scene.model import Flow
+
+    a, b = device("a", 1), device("b", 2)
+    rec = Recorded(scene([vehicle("va", (0, 0, 0), a), vehicle("vb", (10, 0, 0), b)],
+                         [Flow(name="f", src="a", dst=2, size=10, interval=1.0)], duration=10))
+    modem = rec.net.modems["a"]
+    rec.net.sched.at(3.5, rec.net.remove_device, "a")
+    rec.net.sched.at(4.0, lambda: modem.send(2, 10))
+    rec.run()
+    assert len(rec.ev("enq", flow="f")) == 4                    # 0, 1, 2, 3 s
+    assert [d["reason"] for d in rec.ev("drop")] == ["removed"]  # the app's late frame
+
+
+def test_unicast_to_an_address_nobody_has_is_dropped_at_once():
+    a, b = device("a", 1), device("b", 2)
+    rec = Recorded(scene([vehicle("va", (0, 0, 0), a), vehicle("vb", (10, 0, 0), b)]))
+    rec.net.sched.at(1.0, lambda: rec.net.modems["a"].send(9, 10))
+    rec.run()
+    assert [(d["dev"], d["reason"]) for d in rec.ev("drop")] == [("a", "noaddr")] and not rec.ev("tx")

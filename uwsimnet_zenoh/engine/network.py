@@ -81,6 +81,9 @@ class Network:
         if m is None:
             raise ValueError(f"no device {dccomms_id!r}")
         m.close()
+        for f in self.flows:                 # its scene flows end with it
+            if f.modem is m:
+                f.stop = min(f.stop, self.now)
 
     def move(self, vehicle: str, p: tuple[float, float, float], v: tuple[float, float, float] | None = None,
              t: float | None = None) -> None:

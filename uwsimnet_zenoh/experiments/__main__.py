@@ -9,7 +9,7 @@ from pathlib import Path
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="uwsimnet-experiments")
-    ap.add_argument("name", choices=["phy-layer"])
+    ap.add_argument("name", choices=["phy-layer", "twinbot"])
     ap.add_argument("--out", default=None, help="output folder (default out/NAME)")
     a = ap.parse_args(argv)
     out = Path(a.out or f"out/{a.name}")
@@ -17,6 +17,12 @@ def main(argv: list[str] | None = None) -> int:
         from . import phy_layer
 
         phy_layer.run(out)
+        print((out / "summary.md").read_text())
+        print(f"figures and traces in {out}/")
+    if a.name == "twinbot":
+        from . import twinbot
+
+        twinbot.run(out)
         print((out / "summary.md").read_text())
         print(f"figures and traces in {out}/")
     return 0

@@ -28,6 +28,8 @@ class MacContext(Protocol):
     address: int
     id: str
     half_duplex: bool
+    max_distance: float                          # the device's maxDistance, m
+    header_bytes: int                            # the device's headerBytes (framing added to every frame)
     fifo: Any                                    # the tx FIFO (a deque of Frame); read it, pop via fifo_pop
 
     @property
@@ -44,7 +46,10 @@ class MacContext(Protocol):
     def status(self, frame: Frame, event: str) -> None: ...  # sent | acked ... for the application
     def timer(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event: ...
     def tx_time(self, size: int) -> float: ...
-    def max_prop_delay(self) -> float: ...
+    @property
+    def tx_delay(self) -> float: ...             # intrinsic delay from transmit() to the first bit, s
+    def max_prop_delay(self, distance: float | None = None) -> float: ...
+    def trace_rx(self, frame: Frame) -> None: ...  # trace a control frame received (not delivered)
     def ctrl_frame(self, dst: int, size: int, info: dict, about: Frame | None = None) -> Frame: ...
     def random(self) -> float: ...
 

@@ -90,6 +90,9 @@ class Channel:
     def _refresh_overhearing(self) -> None:
         self._overhearing = [i for i, m in enumerate(self.listeners) if m is not None and m.mac.overhear]
 
+    def has_address(self, address: int) -> bool:
+        return address in self._by_addr
+
     def max_prop_delay(self, max_distance: float) -> float:
         return self.min_prop_s + self.prop_s_per_m * max_distance
 

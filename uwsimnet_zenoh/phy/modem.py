@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..mac.base import Mac, resolve
 from .error import RateErrorModel
-from .frame import Frame
+from .frame import BROADCAST, Frame
 
 if TYPE_CHECKING:
     from ..engine.scheduler import Event, Scheduler
@@ -50,6 +50,7 @@ class Modem:
         self.fifo_bytes = 0
         self.fifo_cap = cfg.tx_fifo_bytes
         self.phy_busy = False
+        self.closed = False
         self.half_duplex = tx_channel is rx_channel
         self._seq = 0
         self._last_delivery = 0.0
@@ -65,17 +66,27 @@ class Modem:
 
     # -- the application side ------------------------------------------------------------------
     def send(self, dst: int, payload: int, *, data: bytes | None = None, flow: str | None = None,
-             tag: Any = None) -> Frame:
-        """An application (or flow) offers `payload` bytes for `dst`; the frame ends traced either way."""
+             tag: Any = None, refuse: str | None = None) -> Frame:
+        """An application (or flow) offers `payload` bytes for `dst`; the frame ends traced either way.
+
+        `refuse`: the caller knows the modem cannot take the frame (the bus: its vehicle has no pose
+        yet); it is traced as enq then dropped at the transmitter with that reason."""
         now = self.sched.now
         frame = Frame(self.address, dst, self._seq, payload + self.header_bytes, payload, data=data,
                       flow=flow, t_enq=now, tag=tag, dev=self.id)
         self._seq += 1
         self.counters["enq"] += 1
         direct = not self.fifo and self.mac.ready()
-        if frame.size > self.cfg.max_frame_bytes:
+        if refuse is None:
+            if self.closed:
+                refuse = "removed"
+            elif frame.size > self.cfg.max_frame_bytes:
+                refuse = "size"
+            elif dst != BROADCAST and not self.tx_channel.has_address(dst):
+                refuse = "noaddr"           # nobody on the channel has that address: say so now
+        if refuse is not None:
             self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
-            self.drop(frame, "size")
+            self.drop(frame, refuse)
         elif not direct and self.fifo_bytes + frame.size > self.fifo_cap:
             self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
             self.drop(frame, "fifo")
@@ -171,6 +182,15 @@ class Modem:
     def tx_time(self, size: int) -> float:
         return size * 8.0 / self.bitrate
 
+    @property
+    def tx_delay(self) -> float:
+        """Intrinsic delay from transmit() to the first bit on air (jitter not included), s."""
+        return self.cfg.intrinsic_tx_s
+
+    def trace_rx(self, frame: Frame) -> None:
+        """A MAC control frame reached its MAC intact: traced as `rx`, not handed to the application."""
+        self.tracer.emit(self.sched.now, "rx", self.rx_channel.id, self.id, frame, dist=self._rx_dist)
+
     def max_prop_delay(self, distance: float | None = None) -> float:
         return self.tx_channel.max_prop_delay(self.max_distance if distance is None else distance)
 
@@ -188,6 +208,7 @@ class Modem:
 
     def close(self) -> None:
         """Leave the simulation: every frame still held ends with a drop (reason `removed`)."""
+        self.closed = True
         self.mac.close()
         while self.fifo:
             self.drop(self.fifo_pop(), "removed")

@@ -35,6 +35,8 @@ class FlowSource:
 
     def _fire(self) -> None:
         spec = self.spec
+        if self.sched.now >= self.stop:      # stopped early (its modem was removed)
+            return
         self.modem.send(spec.dst, spec.size, flow=spec.name)
         self.sent += 1
         nxt = self.sched.now + self._gap()
