@@ -1,8 +1,8 @@
 """PER versus distance for every acoustic modem preset (uwsimnet_zenoh.phy.acoustic.PRESETS).
 
 Writes <out>/acoustic-per-vs-distance.png: 64-byte frames, default channel (Thorp, k = 1.5, shipping 0.5,
-wind 0 m/s), log distance axis.  Solid lines are the presets as shipped (excess noise calibrated to the rated
-range, marked with a dot); dashed lines are the same modems on an ideal AWGN link (excess noise 0 dB).
+wind 0 m/s), log distance axis.  Solid lines are the presets as shipped (receiver margin calibrated to the
+rated range, marked with a dot); dashed lines are the same modems on an ideal AWGN link (margin 0 dB).
 Also prints a table of the distances at which PER reaches 10 % and 50 %.
 
 Run: .venv/bin/python bench/acoustic_range_curves.py -o docs/figures
@@ -40,10 +40,10 @@ def main(argv: list[str] | None = None) -> Path:
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
     print(f"{'preset':<26} {'rated m':>8} {'PER10% m':>9} {'PER50% m':>9} {'ideal PER50% m':>15} "
-          f"{'excess noise dB':>15}")
+          f"{'margin dB':>15}")
     for colour, (key, modem) in zip(colours, PRESETS.items(), strict=False):
         link = AcousticLink(channel, modem)
-        ideal = AcousticLink(channel, replace(modem, excess_noise_db=0.0))
+        ideal = AcousticLink(channel, replace(modem, margin_db=0.0))
         label = (f"{modem.name}: {modem.carrier_khz:g} kHz, {modem.bitrate_bps:g} bit/s, "
                  f"SL {modem.sl_db:.0f} dB, rated {modem.rated_range_m / 1000:g} km")
         ax.plot(d, link.per(d, args.size), color=colour, lw=2.2, label=label)
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> Path:
         ax.plot([r], [float(link.per(r, args.size))], "o", color=colour, ms=8, mec="black", mew=0.9, zorder=5)
         r10, r50 = link.distance_for_per(0.1, args.size), link.distance_for_per(0.5, args.size)
         print(f"{key:<26} {r:>8.0f} {r10:>9.0f} {r50:>9.0f} {ideal.distance_for_per(0.5, args.size):>15.0f} "
-              f"{modem.excess_noise_db:>15.1f}")
+              f"{modem.margin_db:>15.1f}")
 
     ax.set_xscale("log")
     ax.set_xlim(d[0], d[-1])
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> Path:
                       title="presets", title_fontsize=9.5)
     ax.add_artist(first)
     style = [Line2D([], [], color="grey", lw=2.2, label="preset as shipped"),
-             Line2D([], [], color="grey", lw=1.1, ls="--", label="ideal AWGN link\n(excess noise 0 dB)"),
+             Line2D([], [], color="grey", lw=1.1, ls="--", label="ideal AWGN link\n(margin 0 dB)"),
              Line2D([], [], color="grey", marker="o", ls="", mec="black",
                     label="rated range\n(calibrated to PER 10 %)")]
     ax.legend(handles=style, loc="upper left", fontsize=9, framealpha=0.95)

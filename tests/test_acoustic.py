@@ -274,9 +274,9 @@ def test_channel_options() -> None:
     assert fg.alpha_db_per_km == pytest.approx(A.francois_garrison_db_per_km(25.0, 4.0, 35.0, 1000.0))
     assert AcousticLink(AcousticChannelParams(absorption=2.5), modem).alpha_db_per_km == 2.5
     fixed_psd = AcousticLink(AcousticChannelParams(noise_psd_db=50.0), modem)
-    assert fixed_psd.nl_db == pytest.approx(50.0 + 10 * math.log10(4000.0) + modem.excess_noise_db)
+    assert fixed_psd.nl_db == pytest.approx(50.0 + 10 * math.log10(4000.0) + modem.margin_db)
     fixed_nl = AcousticLink(AcousticChannelParams(noise_level_db=90.0, noise_psd_db=50.0), modem)
-    assert fixed_nl.nl_db == pytest.approx(90.0 + modem.excess_noise_db)
+    assert fixed_nl.nl_db == pytest.approx(90.0 + modem.margin_db)
     assert AcousticLink(AcousticChannelParams(sound_speed_mps=1500.0), modem).sound_speed() == 1500.0
     # more wind, more noise, shorter range
     windy = AcousticLink(AcousticChannelParams(wind_mps=10.0), modem)
@@ -303,15 +303,15 @@ def test_parameter_validation() -> None:
         m.carrier_khz = 30                                                                  # frozen
 
 
-def test_implementation_loss_and_excess_noise() -> None:
+def test_implementation_loss_and_margin() -> None:
     base = AcousticModemParams(carrier_khz=25, bandwidth_hz=4000, bitrate_bps=1000, source_level_db=180)
     d = 2000.0
     ref = AcousticLink(None, base)
     assert AcousticLink(None, replace(base, implementation_loss_db=5)).ebn0_db(d) == pytest.approx(
         ref.ebn0_db(d) - 5)
-    noisy = AcousticLink(None, replace(base, excess_noise_db=5))
+    noisy = AcousticLink(None, replace(base, margin_db=5))
     assert noisy.snr_db(d) == pytest.approx(ref.snr_db(d) - 5)
-    # excess noise is part of the noise floor: an interferer 30 dB above it still dominates the same way
+    # the margin acts on noise only: an equal-power interferer gives the same SINR with or without it
     s = float(ref.received_level_db(d))
     assert noisy.sinr_db(s, [s]) == pytest.approx(ref.sinr_db(s, [s]), abs=0.01)
 
@@ -349,9 +349,9 @@ def test_preset_rated_range(name: str) -> None:
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
 def test_preset_calibration_is_current(name: str) -> None:
-    # excess_noise_db is calibrate_excess_noise() rounded to 0.1 dB: PER(64 B) = 10 % at the rated range
+    # margin_db is calibrate_margin() rounded to 0.1 dB: PER(64 B) = 10 % at the rated range
     p = PRESETS[name]
-    assert p.excess_noise_db == pytest.approx(A.calibrate_excess_noise(p), abs=0.051)
+    assert p.margin_db == pytest.approx(A.calibrate_margin(p), abs=0.051)
     r10 = AcousticLink(None, p).distance_for_per(0.1, 64)
     assert r10 == pytest.approx(p.rated_range_m, rel=0.02)
 

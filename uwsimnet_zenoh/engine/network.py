@@ -12,6 +12,7 @@ import hashlib
 from typing import Any
 
 from ..mobility.trajectory import PoseTable, Trajectory
+from ..phy.acoustic_build import channel_options, modem_error_model
 from ..phy.channel import Channel
 from ..phy.modem import Modem
 from ..scene.model import Device, Scene, Vehicle
@@ -33,7 +34,8 @@ class Network:
         for v in scene.vehicles:
             self._place(v)
         self.channels: dict[int, Channel] = {
-            c.id: Channel(c.id, c.prop_s_per_m, c.min_prop_s, self.sched, self.poses, self.tracer)
+            c.id: Channel(c.id, c.prop_s_per_m, c.min_prop_s, self.sched, self.poses, self.tracer,
+                          **channel_options(c))
             for c in scene.channels}
         self.modems: dict[str, Modem] = {}
         for v, d in scene.devices():
@@ -71,8 +73,13 @@ class Network:
         for ch in (cfg.tx_channel, cfg.rx_channel):
             if ch not in self.channels:
                 raise ValueError(f"device {cfg.dccomms_id!r}: no channel {ch}")
+        # acoustic devices (and any sender on a SINR channel) get their loss model from phy.acoustic_build
+        error = modem_error_model(cfg, *(next(c for c in self.scene.channels if c.id == ch)
+                                         for ch in (cfg.tx_channel, cfg.rx_channel)))
         m = Modem(cfg, vehicle, self.poses.index[vehicle], self.sched, self.tracer,
                   self.channels[cfg.tx_channel], self.channels[cfg.rx_channel], self.seeds)
+        if error is not None:
+            m.error = error
         self.modems[cfg.dccomms_id] = m
         return m
 

@@ -16,9 +16,11 @@ The link model is the one of ns-3 UAN (``UanPropModelThorp`` + ``UanNoiseModelDe
 (2007): passive sonar equation SNR = SL - TL - NL + DI (Urick), TL = k*10log10(d) + d/1000*alpha(f),
 NL = N(f_c) + 10log10(B), Eb/N0 = SNR + 10log10(B/R), an AWGN bit-error formula per modulation and
 PER = 1 - (1 - BER)^(8L).  `AcousticLink` precomputes everything that does not depend on distance, so the
-per-frame call ``link.per(distances, size_bytes)`` costs a few microseconds.  The modem presets add a
-noise floor above the Wenz/Coates one (``excess_noise_db``), calibrated so that each reaches its rated
-range; see `PRESETS` and docs/acoustic.md.
+per-frame call ``link.per(distances, size_bytes)`` costs a few microseconds.  The modem presets carry a
+receiver margin against noise (``margin_db``), calibrated so that each reaches its rated range: it stands
+for what the free-field AWGN model leaves out (multipath, fading, Doppler, implementation losses,
+conservative ratings) and is not a noise level; see `PRESETS` and docs/acoustic.md.  `AcousticLink` also
+gives received powers and PER from SINR for the channel's interference (capture) mode.
 
 References (full list in docs/acoustic.md):
     Thorp (1967) JASA 42:270; Francois & Garrison (1982) JASA 72:896 and 72:1879; Mackenzie (1981) JASA
@@ -41,7 +43,7 @@ Absorption: TypeAlias = str | float | Callable[[np.ndarray], np.ndarray]
 __all__ = [
     "AcousticChannelParams", "AcousticLink", "AcousticModemParams", "MODULATIONS", "PRESETS",
     "ber_bfsk_coherent", "ber_bfsk_noncoherent", "ber_bpsk", "ber_bpsk_rayleigh", "ber_dpsk",
-    "calibrate_excess_noise", "db_to_linear", "ebn0_db", "erfc", "francois_garrison_db_per_km",
+    "calibrate_margin", "db_to_linear", "ebn0_db", "erfc", "francois_garrison_db_per_km",
     "linear_to_db", "noise_level_db", "noise_psd_db", "per_from_ber", "required_ebn0_db",
     "snr_db", "sound_speed_francois_garrison", "sound_speed_mackenzie", "source_level_db",
     "thorp_db_per_km", "transmission_loss_db",
@@ -428,10 +430,14 @@ class AcousticModemParams:
         directivity_index_db: receiver directivity index DI, dB (default 0: omnidirectional).
         implementation_loss_db: receiver implementation loss, dB, subtracted from Eb/N0 (and from the
             SINR-derived Eb/N0): synchronisation, equalisation, coding relative to the ideal formula.
-        excess_noise_db: noise at this modem's receiver above the channel's ambient (Wenz/Coates) level, dB:
-            platform and self noise, multipath self-interference, harbour noise.  It raises the noise floor
-            (so it matters for range, not for capture against a strong interferer).  0 = ideal AWGN link;
-            the presets calibrate it to their rated range (see `calibrate_excess_noise`).
+        margin_db: receiver margin against ambient noise, dB: the noise this modem's receiver sees is the
+            channel's (Wenz/Coates or fixed) noise raised by margin_db.  A lumped stand-in for everything
+            the free-field AWGN model leaves out (multipath, fading, Doppler, implementation losses, platform
+            noise, conservative ratings), NOT a physical noise level.  Acting on noise only, it sets the range
+            but leaves the signal-to-interference ratio a strong frame needs to capture the receiver to the
+            modulation itself; and being relative to the channel noise, wind, shipping or a fixed noise level
+            still shift the range.  0 = ideal AWGN link; the presets calibrate it to their rated range (see
+            `calibrate_margin` and docs/acoustic.md).
         name: a label.
         band_khz: (low, high) band edges, kHz, for documentation (None if not known).
         rated_range_m: the manufacturer's (or assumed) maximum range, m, for documentation and calibration.
@@ -446,7 +452,7 @@ class AcousticModemParams:
     modulation: str = "bpsk"
     directivity_index_db: float = 0.0
     implementation_loss_db: float = 0.0
-    excess_noise_db: float = 0.0
+    margin_db: float = 0.0
     name: str = "custom"
     band_khz: tuple[float, float] | None = None
     rated_range_m: float | None = None
@@ -485,7 +491,7 @@ class AcousticLink:
     ``channel`` defaults to `AcousticChannelParams()`; ``modem`` may be an `AcousticModemParams` or the name
     of a preset.
 
-    Noise at the receiver, dB re 1 uPa: NL = channel noise in the modem band + modem.excess_noise_db.
+    Noise at the receiver, dB re 1 uPa: NL = channel noise in the modem band + modem.margin_db.
     SNR = SL - TL - NL + DI;  Eb/N0 = SNR + 10 log10(B/R) - modem.implementation_loss_db.
     """
 
@@ -502,7 +508,7 @@ class AcousticLink:
         self.alpha_db_per_km = float(channel.absorption_db_per_km(modem.carrier_khz))
         self.sl_db = modem.sl_db
         self.nl_db = (channel.noise_level_in_band_db(modem.carrier_khz, modem.bandwidth_hz)
-                      + modem.excess_noise_db)
+                      + modem.margin_db)
         self.di_db = float(modem.directivity_index_db)
         self.bw_gain_db = 10.0 * math.log10(modem.bandwidth_hz / modem.bitrate_bps)
         self._k10 = 10.0 * channel.spreading_k
@@ -535,8 +541,20 @@ class AcousticLink:
         """Received level RL = SL - TL, dB re 1 uPa."""
         return _out(self.sl_db - _f(self.transmission_loss_db(distance_m)))
 
+    def received_power(self, distance_m: ArrayLike) -> np.ndarray:
+        """Received power, linear, uPa^2 (10^(RL/10)), at each distance (m, clamped to >= 1 m): a new array.
+
+        The channel's SINR mode stores this per listener for every transmission."""
+        d = np.maximum(np.asarray(distance_m, dtype=float), 1.0)
+        return np.power(10.0, 0.1 * (self.sl_db - self._k10 * np.log10(d) - self._alpha_per_m * d))
+
+    @property
+    def noise_power(self) -> float:
+        """Noise power at this modem's receiver, linear, uPa^2: 10^((NL - DI)/10), margin included."""
+        return self._noise_lin
+
     def snr_db(self, distance_m: ArrayLike) -> ArrayLike:
-        """In-band SNR = SL - TL - NL + DI, dB (NL includes the modem's excess noise)."""
+        """In-band SNR = SL - TL - NL + DI, dB (NL includes the modem's margin)."""
         return _out(self.sl_db - _f(self.transmission_loss_db(distance_m)) - self.nl_db + self.di_db)
 
     def ebn0_db(self, distance_m: ArrayLike) -> ArrayLike:
@@ -616,10 +634,10 @@ class AcousticLink:
         return math.exp(0.5 * (lo + hi))
 
 
-def calibrate_excess_noise(modem: AcousticModemParams, channel: AcousticChannelParams | None = None,
+def calibrate_margin(modem: AcousticModemParams, channel: AcousticChannelParams | None = None,
                            range_m: float | None = None, target_per: float = 0.1,
                            size_bytes: int = 64) -> float:
-    """The excess noise (dB) that makes ``modem`` reach PER = ``target_per`` on ``size_bytes`` frames at
+    """The margin (dB) that makes ``modem`` reach PER = ``target_per`` on ``size_bytes`` frames at
     ``range_m`` (default: its rated range) in ``channel`` (default: `AcousticChannelParams()`).
 
     A negative result means the ideal model is pessimistic for that modem.
@@ -627,26 +645,26 @@ def calibrate_excess_noise(modem: AcousticModemParams, channel: AcousticChannelP
     range_m = modem.rated_range_m if range_m is None else range_m
     if range_m is None:
         raise ValueError("no range given and the modem has no rated_range_m")
-    ideal = AcousticLink(channel, replace(modem, excess_noise_db=0.0))
+    ideal = AcousticLink(channel, replace(modem, margin_db=0.0))
     return float(ideal.ebn0_db(range_m)) - required_ebn0_db(modem.modulation, target_per, size_bytes)
 
 
 # ---------------------------------------------------------------------------------------------------
 # Presets
 # ---------------------------------------------------------------------------------------------------
-# Each preset's excess_noise_db is calibrate_excess_noise(preset) (PER 10 % on 64-byte frames at the rated
-# range, default channel: Thorp, k = 1.5, shipping 0.5, wind 0), rounded to 0.1 dB; tests/test_acoustic.py
-# checks they stay in step with the model.  It stands for everything the free-field, sea-state-0, AWGN model
-# leaves out (real coastal and platform noise, multipath self-interference, Doppler), which is why it is
-# tens of dB: with these source levels the ideal model reaches 8-27 km whatever the rated range.
-_CALIBRATION = ("excess_noise_db calibrated so that PER(64 B) = 10 % at the rated range in the default "
+# Each preset's margin_db is calibrate_margin(preset) (PER 10 % on 64-byte frames at the rated range, default
+# channel: Thorp, k = 1.5, shipping 0.5, wind 0), rounded to 0.1 dB; tests/test_acoustic.py checks they stay
+# in step with the model.  It is tens of dB because with these source levels the free-field AWGN model
+# reaches 8-27 km whatever the rated range: the ratings are set by multipath, fading, Doppler and caution,
+# not by ambient noise (docs/acoustic.md, "The presets' margin", has the per-preset breakdown).
+_CALIBRATION = ("margin_db calibrated so that PER(64 B) = 10 % at the rated range in the default "
                 "channel (Thorp, k = 1.5, shipping 0.5, wind 0 m/s).")
 
 PRESETS: dict[str, AcousticModemParams] = {
     "evologics-s2cr-18-34": AcousticModemParams(
         name="EvoLogics S2CR 18/34", band_khz=(18.0, 34.0), carrier_khz=26.0, bandwidth_hz=16_000.0,
         bitrate_bps=13_900.0, power_w=35.0, modulation="dpsk", rated_range_m=3_500.0,
-        excess_noise_db=37.8,
+        margin_db=37.8,
         source=("Band 18-34 kHz, up to 13.9 kbit/s, range 3500 m, transmit power 2.8 W (1000 m) to 35 W "
                 "(3500 m): EvoLogics S2CR 18/34 product information sheet (evologics.de/files/DataSheets/"
                 "EvoLogics_S2CR_1834_Product_Information.pdf), as quoted in public repositories; not read "
@@ -657,7 +675,7 @@ PRESETS: dict[str, AcousticModemParams] = {
     "evologics-s2cr-7-17": AcousticModemParams(
         name="EvoLogics S2CR 7/17", band_khz=(7.0, 17.0), carrier_khz=12.0, bandwidth_hz=10_000.0,
         bitrate_bps=6_900.0, source_level_db=186.2, modulation="dpsk", rated_range_m=8_000.0,
-        excess_noise_db=39.3,
+        margin_db=39.3,
         source=("Band 7-17 kHz, up to 6.9 kbit/s, range 8000 m: EvoLogics S2CR 7/17 product information, "
                 "as quoted in public comparison tables; not read first-hand.  Carrier = band centre.  "
                 "Source level: not published; ASSUMED equal to the 18/34 preset (186.2 dB re 1 uPa @ 1 m).  "
@@ -665,7 +683,7 @@ PRESETS: dict[str, AcousticModemParams] = {
     "whoi-micromodem": AcousticModemParams(
         name="WHOI Micro-Modem FH-FSK 80 bps", band_khz=(23.0, 27.0), carrier_khz=25.0, bandwidth_hz=4_000.0,
         bitrate_bps=80.0, source_level_db=185.0, modulation="bfsk_noncoherent", rated_range_m=8_000.0,
-        excess_noise_db=24.3,
+        margin_db=24.3,
         source=("80 bps FH-FSK in a 4 kHz band (data rates 80-5400 bps; FSK BW = 4 kHz, PSK BW = 5 kHz): "
                 "acomms.whoi.edu/micro-modem.  Carrier 25 kHz: the common band of the Micro-Modem, which "
                 "can be configured in four bands between 3 and 30 kHz (Freitag et al., 'The WHOI "
@@ -676,7 +694,7 @@ PRESETS: dict[str, AcousticModemParams] = {
     "whoi-micromodem-psk5400": AcousticModemParams(
         name="WHOI Micro-Modem PSK 5400 bps", band_khz=(22.5, 27.5), carrier_khz=25.0, bandwidth_hz=5_000.0,
         bitrate_bps=5_400.0, source_level_db=185.0, modulation="bpsk", rated_range_m=2_500.0,
-        excess_noise_db=51.2,
+        margin_db=51.2,
         source=("5400 bps PSK (highest Micro-Modem rate), 5 kHz band: acomms.whoi.edu/micro-modem.  "
                 "Carrier 25 kHz and SL 185 dB re 1 uPa @ 1 m ASSUMED as for the FSK preset.  Range: ASSUMED "
                 "2500 m, after Frye et al., 'An acoustically-linked deep-ocean observatory' (OCEANS 2005), "
@@ -685,7 +703,7 @@ PRESETS: dict[str, AcousticModemParams] = {
     "seatrac-x150": AcousticModemParams(
         name="Blueprint Subsea SeaTrac X150", band_khz=(24.0, 32.0), carrier_khz=28.0, bandwidth_hz=8_000.0,
         bitrate_bps=100.0, source_level_db=176.0, modulation="dpsk", rated_range_m=1_000.0,
-        excess_noise_db=73.1,
+        margin_db=73.1,
         source=("Band 24-32 kHz and 1000 m range: Blueprint Subsea SeaTrac X150 datasheet, as quoted "
                 "in public project documentation; not read first-hand.  100 bit/s: SeaTrac Serial "
                 "Command Interface Reference (UM-140-D00221), CID_DAT_SEND: 'larger quantities of data "

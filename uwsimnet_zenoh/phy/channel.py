@@ -8,16 +8,20 @@ reception.  Collisions are then decided by looking at the few transmissions stil
 receptions at the same listener whose intervals overlap are both lost; a half-duplex listener's own
 transmission is an interval in its own column, so receiving while transmitting is a collision too.
 Carrier sense is a query on the same log.  ns-3 spends 2-3 events per receiver per frame instead.
+A channel in SINR mode (acoustic, issue #5) keeps each transmission's received power per listener and
+replaces the binary rule by capture on the minimum SINR (`_reception_end_sinr`, phy.interference).
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .frame import BROADCAST, Frame
+from .interference import classify, min_sinr_db
 
 if TYPE_CHECKING:
     from ..engine.scheduler import Scheduler
@@ -31,7 +35,7 @@ INF = float("inf")
 class Transmission:
     """One frame in the air: its arrival/end time at every listener slot (inf = never arrives)."""
 
-    __slots__ = ("frame", "sender", "t0", "dur", "arr", "end", "max_end", "dist")
+    __slots__ = ("frame", "sender", "t0", "dur", "arr", "end", "max_end", "dist", "pow", "acq")
 
     def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, arr: np.ndarray,
                  dist: np.ndarray, max_end: float) -> None:
@@ -43,14 +47,27 @@ class Transmission:
         self.end = arr + dur
         self.dist = dist
         self.max_end = max_end
+        self.pow: np.ndarray | None = None    # received power per listener slot, linear (SINR mode only)
+        self.acq: dict[int, bool] | None = None   # slot -> acquired (SINR mode, capture "first" only)
 
 
 class Channel:
     """A `CustomCommsChannel`: delay = min_prop_s + prop_s_per_m * distance at transmission start."""
 
     def __init__(self, cid: int, prop_s_per_m: float, min_prop_s: float, sched: Scheduler,
-                 poses: PoseTable, tracer: Tracer) -> None:
+                 poses: PoseTable, tracer: Tracer, *, sinr: bool = False,
+                 sinr_threshold_db: float | None = None, lock_first_db: float | None = None) -> None:
         self.id = cid
+        # SINR mode (an AcousticCommsChannel with <interference>sinr</interference>): overlapping frames
+        # add to the noise and a frame survives on its minimum SINR (capture) instead of the binary rule;
+        # every sender's `error` must then give received_power(d), noise_power and per_from_sinr(sinr, L).
+        self.sinr = sinr
+        self.sinr_threshold_db = sinr_threshold_db
+        # capture "first" (ns-3 UanPhyGen): a receiver locks onto the first frame whose SINR at its arrival
+        # exceeds lock_first_db and cannot receive another until that one ends; None: any frame may capture
+        self.lock_first_db = lock_first_db
+        self._pow_cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.captures = 0                           # SINR mode: frames received although others overlapped
         self.prop_s_per_m = prop_s_per_m
         self.min_prop_s = min_prop_s
         self.sched = sched
@@ -138,6 +155,8 @@ class Channel:
 
         dist, delay, ok, max_delay = self._geometry(sender, now)
         tx = Transmission(frame, sender, now, dur, delay + now, dist, now + dur + max_delay)
+        if self.sinr:
+            tx.pow = self._powers(sender, dist)
         log.append(tx)
 
         own = sender.rx_slot if sender.rx_channel is self else -1
@@ -158,6 +177,7 @@ class Channel:
         rnd = sender.loss_random
         at = self.sched.at
         end = tx.end
+        sinr = self.sinr
         for n, j in enumerate(targets):
             if not reach[n]:
                 if n < intended:
@@ -167,7 +187,10 @@ class Channel:
                     self.tracer.emit(now, "drop", self.id, m.id, frame, why, dist=float(dist[j]))
                     m.mac.on_rx_error(frame, why)
                 continue
-            at(float(end[j]), self._reception_end, tx, j, rnd() < per[n], n < intended)
+            if sinr:
+                at(float(end[j]), self._reception_end_sinr, tx, j, rnd(), float(per[n]), n < intended)
+            else:
+                at(float(end[j]), self._reception_end, tx, j, rnd() < per[n], n < intended)
 
     def _reception_end(self, tx: Transmission, j: int, lost: bool, intended: bool) -> None:
         """The last bit of `tx` reached slot j: decide its fate against everything else heard there."""
@@ -191,6 +214,87 @@ class Channel:
             modem.mac.on_rx_error(frame, reason)
         else:
             modem.phy_received(frame, float(tx.dist[j]))
+
+    # -- SINR mode (capture) ------------------------------------------------------------------
+    def _powers(self, sender: Modem, dist: np.ndarray) -> np.ndarray:
+        """Received power of `sender` at every slot; cached while its geometry (the same array) holds."""
+        hit = self._pow_cache.get(sender.id)
+        if hit is not None and hit[0] is dist:
+            return hit[1]
+        p = sender.error.received_power(dist)
+        self._pow_cache[sender.id] = (dist, p)
+        return p
+
+    def _reception_end_sinr(self, tx: Transmission, j: int, u: float, per_snr: float, intended: bool) -> None:
+        """SINR mode: the last bit of `tx` reached slot j; decide by its minimum SINR (phy.interference)."""
+        modem = self.listeners[j]
+        if modem is None:
+            return
+        a, e = tx.arr[j], tx.end[j]
+        own = False
+        spans = []
+        for g in self.log:
+            if g is not tx and j < len(g.arr) and g.arr[j] < e and a < g.end[j]:
+                if g.sender.rx_slot == j and g.sender.rx_channel is self:
+                    own = True                  # half duplex: transmitting while this frame arrives
+                else:
+                    spans.append((g.arr[j], g.end[j], g.pow[j]))
+        per_sinr = per_snr
+        if own:
+            per_sinr = 1.0
+        elif self.lock_first_db is not None and not self._acquired(tx, j):
+            per_sinr = 1.0                      # never locked onto: lost (col), or to noise if it was alone
+            if not spans:
+                per_snr = 1.0
+        elif spans and u >= per_snr:
+            err = tx.sender.error
+            sinr_db = min_sinr_db(tx.pow[j], err.noise_power, spans, a)
+            thr = self.sinr_threshold_db
+            if thr is not None:
+                per_sinr = 1.0 if sinr_db < thr else per_snr
+            else:
+                per_sinr = max(per_snr, float(err.per_from_sinr(sinr_db, tx.frame.size)))
+        reason = classify(u, per_snr, per_sinr, own or bool(spans))
+        frame = tx.frame
+        if not intended:
+            if reason is None:
+                modem.mac.on_overhear(frame)
+            return
+        if reason is not None:
+            self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=float(tx.dist[j]))
+            modem.mac.on_rx_error(frame, reason)
+        else:
+            if spans:
+                self.captures += 1
+            modem.phy_received(frame, float(tx.dist[j]))
+
+    def _acquired(self, g: Transmission, j: int) -> bool:
+        """Capture "first": did slot j lock onto `g` when it arrived?  Only if it was not transmitting, not
+        locked onto an earlier frame still arriving, and g's SINR at that instant exceeded lock_first_db
+        (ns-3 UanPhyGen::StartRxPacket).  Memoised per (transmission, slot)."""
+        memo = g.acq
+        if memo is None:
+            memo = g.acq = {}
+        hit = memo.get(j)
+        if hit is not None:
+            return hit
+        a = g.arr[j]
+        interference = 0.0
+        ok = True
+        for h in self.log:
+            if h is g or j >= len(h.arr) or not (h.arr[j] <= a < h.end[j]):
+                continue
+            if h.sender.rx_slot == j and h.sender.rx_channel is self:
+                ok = False                      # transmitting: cannot start receiving
+                break
+            if h.arr[j] < a and self._acquired(h, j):
+                ok = False                      # already locked onto h
+                break
+            interference += h.pow[j]
+        if ok:
+            ok = 10.0 * math.log10(g.pow[j] / (g.sender.error.noise_power + interference)) > self.lock_first_db
+        memo[j] = ok
+        return ok
 
     # -- carrier sense -------------------------------------------------------------------------
     def _heard(self, g: Transmission, slot: int, t: float) -> bool:

@@ -1,0 +1,156 @@
+"""From the scene's acoustic specs to physics: the one place where an `AcousticCommsChannel` and an
+`AcousticCommsDevice` become numbers (sound speed, `AcousticChannelParams`, `AcousticModemParams`, the
+loss model a modem uses).
+
+Used by `scene.model` (to derive a channel's propagation delay and a device's default bit rate) and by
+`engine.network` (to give an acoustic modem its `AcousticLink` as `Modem.error`).  Sans-IO, numpy only.
+
+Resolution of a device's parameters, first match wins:
+    carrier     device frequency (kHz) > preset > 25 kHz (the original's AcousticROSCommsDevice default)
+    bandwidth   device bandwidth > preset > the channel's bandwidth (legacy, default 4096 Hz)
+    level       device sourceLevel or power > preset > 0.2818 W (the original's / Aqua-Sim's PT default)
+    modulation  device > preset > bpsk
+    margin      device > preset > 0 dB
+    bit rate    always `Device.bitrate` (which defaults to the preset's)
+    spreading   device K > channel spreading
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .acoustic import PRESETS, AcousticChannelParams, AcousticLink, AcousticModemParams, per_from_ber
+
+if TYPE_CHECKING:
+    from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device
+
+__all__ = ["DEFAULT_CARRIER_KHZ", "DEFAULT_POWER_W", "FixedBerLink", "build_error_model", "channel_options",
+           "channel_params",
+           "default_bitrate", "modem_error_model", "modem_params", "prop_s_per_m", "sound_speed"]
+
+DEFAULT_CARRIER_KHZ = 25.0
+"""Carrier when neither the device nor a preset gives one (dccomms_ros AcousticROSCommsDevice default)."""
+DEFAULT_POWER_W = 0.2818
+"""Radiated power when neither the device nor a preset gives a level (the original's / Aqua-Sim's PT)."""
+
+
+def channel_params(spec: AcousticChannelSpec, spreading_k: float | None = None) -> AcousticChannelParams:
+    """The physics of a channel spec (``spreading_k`` overrides the channel's, for a device's K)."""
+    return AcousticChannelParams(
+        temperature_c=spec.temperature_c, salinity_ppt=spec.salinity_ppt, depth_m=spec.depth_m, ph=spec.ph,
+        spreading_k=spec.spreading_k if spreading_k is None else spreading_k, absorption=spec.absorption,
+        shipping=spec.shipping, wind_mps=spec.wind_mps, noise_psd_db=spec.noise_psd_db,
+        noise_level_db=spec.noise_level_db, sound_speed_mps=spec.sound_speed_mps)
+
+
+def sound_speed(spec: AcousticChannelSpec) -> float:
+    """Sound speed of the channel's water, m/s (fixed soundSpeed, else Mackenzie 1981)."""
+    return channel_params(spec).sound_speed()
+
+
+def prop_s_per_m(spec: AcousticChannelSpec) -> float:
+    """Propagation delay per metre of the channel, s/m: 1 / sound speed."""
+    return 1.0 / sound_speed(spec)
+
+
+def default_bitrate(spec: AcousticDeviceSpec) -> float | None:
+    """The bit rate a device gets when the scene gives none: its preset's (None without a preset)."""
+    return PRESETS[spec.preset].bitrate_bps if spec.preset is not None else None
+
+
+def modem_params(dev: AcousticDeviceSpec, channel: AcousticChannelSpec, bitrate: float) -> AcousticModemParams:
+    """The modem mode of a device spec on a channel, bit rate ``bitrate`` bit/s (see the module docstring)."""
+    base = PRESETS.get(dev.preset) if dev.preset is not None else None
+    if base is None:
+        base = AcousticModemParams(name="custom", carrier_khz=DEFAULT_CARRIER_KHZ,
+                                   bandwidth_hz=channel.bandwidth_hz, bitrate_bps=bitrate,
+                                   power_w=DEFAULT_POWER_W)
+    changes: dict = {"bitrate_bps": float(bitrate), "directivity_index_db": dev.directivity_index_db,
+                     "implementation_loss_db": dev.implementation_loss_db}
+    if dev.carrier_khz is not None:
+        changes["carrier_khz"] = dev.carrier_khz
+    if dev.bandwidth_hz is not None:
+        changes["bandwidth_hz"] = dev.bandwidth_hz
+    if dev.source_level_db is not None:
+        changes.update(source_level_db=dev.source_level_db, power_w=None)
+    elif dev.power_w is not None:
+        changes.update(source_level_db=None, power_w=dev.power_w)
+    if dev.modulation is not None:
+        changes["modulation"] = dev.modulation
+    if dev.margin_db is not None:
+        changes["margin_db"] = dev.margin_db
+    return replace(base, **changes)
+
+
+class FixedBerLink:
+    """An `AcousticLink` whose noise-limited bit error rate is a constant (legacy ``bitErrorRate``).
+
+    per(d, L) = 1 - (1 - BER)^(8L) at every distance; the received power, the noise and PER from SINR
+    (capture) stay the physics of the wrapped link, with PER(SINR) never below the fixed PER.
+    """
+
+    __slots__ = ("link", "ber")
+
+    def __init__(self, link: AcousticLink, ber: float) -> None:
+        self.link = link
+        self.ber = float(ber)
+
+    def __repr__(self) -> str:
+        return f"FixedBerLink({self.link!r}, ber={self.ber:g})"
+
+    def per(self, distance_m: np.ndarray | float, size_bytes: int) -> np.ndarray:
+        return np.full(np.shape(distance_m), float(per_from_ber(self.ber, size_bytes)))
+
+    def received_power(self, distance_m: np.ndarray | float) -> np.ndarray:
+        return self.link.received_power(distance_m)
+
+    @property
+    def noise_power(self) -> float:
+        return self.link.noise_power
+
+    def per_from_sinr(self, sinr_db: float, size_bytes: int) -> float:
+        return max(float(per_from_ber(self.ber, size_bytes)), float(self.link.per_from_sinr(sinr_db, size_bytes)))
+
+
+def build_error_model(device: Device, channel: Channel) -> AcousticLink | FixedBerLink:
+    """The loss model (``Modem.error``) of an acoustic device transmitting on ``channel``.
+
+    Raises ValueError if the device or the channel is not acoustic."""
+    dev, ch = device.acoustic, channel.acoustic
+    if dev is None:
+        raise ValueError(f"device {device.dccomms_id!r} is not an AcousticCommsDevice")
+    if ch is None:
+        raise ValueError(f"device {device.dccomms_id!r}: an AcousticCommsDevice needs an AcousticCommsChannel,"
+                         f" channel {channel.id} is a CustomCommsChannel")
+    link = AcousticLink(channel_params(ch, dev.spreading_k), modem_params(dev, ch, device.bitrate))
+    return link if dev.bit_error_rate is None else FixedBerLink(link, dev.bit_error_rate)
+
+
+def channel_options(channel: Channel) -> dict:
+    """Keyword options of the simulator's `phy.channel.Channel` for a scene channel: its interference rule."""
+    spec = channel.acoustic
+    if spec is None or spec.interference != "sinr":
+        return {}
+    return {"sinr": True, "sinr_threshold_db": spec.sinr_threshold_db,
+            "lock_first_db": spec.acquire_threshold_db if spec.capture == "first" else None}
+
+
+def modem_error_model(device: Device, tx_channel: Channel,
+                      rx_channel: Channel | None = None) -> AcousticLink | FixedBerLink | None:
+    """The loss model a modem needs beyond its `rateErrorModel`, or None (the custom-modem path).
+
+    An acoustic device gets `build_error_model`; a custom device may not transmit on a SINR channel (its
+    received power is unknown).  Raises ValueError with the reason otherwise."""
+    if device.acoustic is None:
+        if channel_options(tx_channel):
+            raise ValueError(f"device {device.dccomms_id!r}: channel {tx_channel.id} decides collisions by SINR,"
+                             " which needs the received power of every transmitter: only an AcousticCommsDevice"
+                             " can transmit on it")
+        return None
+    if rx_channel is not None and rx_channel.acoustic is None:
+        raise ValueError(f"device {device.dccomms_id!r}: an AcousticCommsDevice needs an AcousticCommsChannel,"
+                         f" channel {rx_channel.id} is a CustomCommsChannel")
+    return build_error_model(device, tx_channel)
