@@ -14,17 +14,12 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     out = Path(a.out or f"out/{a.name}")
     if a.name == "phy-layer":
-        from . import phy_layer
-
-        phy_layer.run(out)
-        print((out / "summary.md").read_text())
-        print(f"figures and traces in {out}/")
-    if a.name == "twinbot":
-        from . import twinbot
-
-        twinbot.run(out)
-        print((out / "summary.md").read_text())
-        print(f"figures and traces in {out}/")
+        from . import phy_layer as experiment
+    else:
+        from . import twinbot as experiment
+    experiment.run(out)
+    print((out / "summary.md").read_text())
+    print(f"figures and traces in {out}/")
     return 0
 
 
