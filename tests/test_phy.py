@@ -276,3 +276,15 @@ def test_every_frame_ends_in_exactly_one_outcome_per_intended_receiver():
             assert sorted(got) == sorted(listeners - {src_dev})
         else:
             assert got == [addr_dev[e["dst"]]]
+
+
+@pytest.mark.parametrize("bitrate,sizes", [(4800, (2, 3)), (1800, (7, 30)), (9600, (1, 13))])
+def test_back_to_back_frames_from_one_modem_never_collide(bitrate, sizes):
+    """Consecutive frames touch at the receiver; float rounding must not turn that into a collision."""
+    a = device("a", 1, bitrate=bitrate)
+    b = device("b", 2)
+    rec = Recorded(scene([vehicle("va", (0, 0, 0), a), vehicle("vb", (3.7, 1.1, 0), b)]))
+    for i in range(40):
+        at(rec, 0.0, "a", 2, sizes[i % 2])
+    rec.run()
+    assert not rec.ev("drop") and len(rec.ev("rx")) == 40

@@ -30,6 +30,10 @@ if TYPE_CHECKING:
     from .modem import Modem
 
 INF = float("inf")
+TOUCH = 1e-9
+"""Receptions that overlap by less than a nanosecond touch: back-to-back frames from one modem end and
+begin at the same instant, but float rounding of (t0 + dur) + delay vs (t0 + delay) + dur can make them
+overlap by ~1e-16 s, which must not count as a collision."""
 
 
 class Transmission:
@@ -200,7 +204,7 @@ class Channel:
         a, e = tx.arr[j], tx.end[j]
         col = False
         for g in self.log:
-            if g is not tx and j < len(g.arr) and g.arr[j] < e and a < g.end[j]:
+            if g is not tx and j < len(g.arr) and g.arr[j] < e - TOUCH and a < g.end[j] - TOUCH:
                 col = True
                 break
         frame = tx.frame
@@ -234,7 +238,7 @@ class Channel:
         own = False
         spans = []
         for g in self.log:
-            if g is not tx and j < len(g.arr) and g.arr[j] < e and a < g.end[j]:
+            if g is not tx and j < len(g.arr) and g.arr[j] < e - TOUCH and a < g.end[j] - TOUCH:
                 if g.sender.rx_slot == j and g.sender.rx_channel is self:
                     own = True                  # half duplex: transmitting while this frame arrives
                 else:
@@ -299,7 +303,7 @@ class Channel:
     # -- carrier sense -------------------------------------------------------------------------
     def _heard(self, g: Transmission, slot: int, t: float) -> bool:
         """Is `g` energy at `slot` at time t?  (A modem does not sense its own transmission.)"""
-        return (slot < len(g.arr) and g.arr[slot] <= t < g.end[slot]
+        return (slot < len(g.arr) and g.arr[slot] <= t < g.end[slot] - TOUCH
                 and not (g.sender.rx_channel is self and g.sender.rx_slot == slot))
 
     def busy(self, slot: int) -> bool:
