@@ -11,6 +11,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e '.[dev]'
+	$(BIN)/pip install -q -e gli_clients/python
 	@touch $(STAMP)
 
 ## The paper's physical-layer experiment (Section 3.1): trace, report and figures in out/phy-layer/

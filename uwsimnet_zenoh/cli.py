@@ -79,11 +79,27 @@ def _advance(net, end: float, progress: bool) -> None:
             bar.update(task, completed=net.now)
 
 
+def default_clock(scene, args: argparse.Namespace) -> str:
+    """The scene's <clock> if it names one, else realtime when something outside drives the run
+    (a vehicle with poseSource zenoh, flows run by external apps), else virtual."""
+    if "clock" in scene.simulation.model_fields_set:
+        return scene.simulation.clock
+    if getattr(args, "external_flows", None) or any(v.pose_source == "zenoh" for v in scene.vehicles):
+        return "realtime"
+    return scene.simulation.clock
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    from .bus.router import run_router  # noqa: PLC0415 - zenoh only when needed
+
+    return run_router(args)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     scene = _load(args.scene)
     if args.world:
         scene = scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"world": args.world})})
-    clock = args.clock or scene.simulation.clock
+    clock = args.clock or default_clock(scene, args)
     if clock == "realtime":
         from .bus.runtime import run_realtime  # noqa: PLC0415 - zenoh only when needed
 
@@ -160,7 +176,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--listen", action="append", help="Zenoh endpoint to listen on (realtime)")
     r.add_argument("--connect", action="append", help="Zenoh router to connect to instead (realtime)")
     r.add_argument("--channels", help="comma-separated channel ids this broker serves (realtime)")
+    r.add_argument("--external-flows", metavar="NAMES",
+                   help="flows (comma-separated, or 'all') run by external apps, not by the simulator (realtime)")
     r.set_defaults(fn=cmd_run)
+
+    ro = sub.add_parser("router", help="a standalone Zenoh router for this machine (other machines connect)")
+    ro.add_argument("--listen", action="append", help="endpoint to listen on (default tcp/[::]:7447)")
+    ro.add_argument("--connect", action="append", help="another router to connect to (other machines)")
+    ro.add_argument("--config", help="Zenoh JSON5 configuration file (TLS, access control, ...)")
+    ro.set_defaults(fn=cmd_router)
 
     v = sub.add_parser("validate", help="check a scene; exit 2 with file:line: message on errors")
     v.add_argument("scene")

@@ -1,0 +1,380 @@
+"""Realtime fidelity of the Zenoh runtime (issue #4), with real processes over loopback TCP.
+
+1. Delivery error with N modems (default 2, 16, 64), each vehicle's pose published at 50 Hz by a
+   separate process: `uwsimnet run --clock realtime` (embedded router) in one process, the poses in a
+   second, the applications in this one (every modem sends to its neighbour; one wildcard subscriber on
+   `modem/*/rx`).  Delivery error = wall time at which the app gets a frame on `rx` minus the frame's
+   modelled delivery time mapped to wall time (the broker's clock epoch + t_rx).  Also: the engine's own
+   lateness (how late events ran on the engine thread, from the broker's summary).
+2. Broker overhead: app -> broker -> app with a zero modelled delay, against a bare Zenoh round trip
+   through an echo process that is also a Python router (the same topology: app -> router+echo -> app).
+
+Run: .venv/bin/python bench/bench_realtime.py [--modems 2,16,64] [--seconds 20] [--markdown]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.metadata
+import json
+import math
+import os
+import platform
+import re
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import msgpack
+import zenoh
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = sys.executable
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def client(endpoint: str) -> zenoh.Config:
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    c.insert_json5("connect/timeout_ms", "5000")
+    c.insert_json5("scouting/multicast/enabled", "false")
+    return c
+
+
+def direct(fn):
+    """Callbacks on Zenoh's network thread (no Python thread hop): the measuring side adds nothing."""
+    return zenoh.handlers.Callback(fn, indirect=False)
+
+
+def pct(xs: list[float], q: float) -> float:
+    if not xs:
+        return math.nan
+    s = sorted(xs)
+    return s[min(len(s) - 1, int(q * len(s)))]
+
+
+# -- scenes ---------------------------------------------------------------------------------------
+def scene_xml(n: int, world: str, *, zero_delay: bool = False) -> str:
+    """n vehicles (poseSource zenoh) 100 m apart on a line, one modem each, each hearing only its
+    neighbours (150 m range; 16 B frames take 1.3 ms: no collisions with the staggered sends below);
+    or 2 co-located modems with no modelled delay at all (zero_delay)."""
+    prop, bitrate = ("0", "1000000000") if zero_delay else ("0.6667", "100000")
+    reach = 5000 if zero_delay else 150
+    vs = []
+    for i in range(n):
+        src = "<position>0 0 0</position>" if zero_delay else "<poseSource>zenoh</poseSource>"
+        vs.append(f"""<vehicle><name>v{i}</name>{src}<CustomCommsDevice><dccommsId>m{i}</dccommsId><mac>{i + 1}</mac>
+<txChannelId>0</txChannelId><rxChannelId>0</rxChannelId><bitrate>{bitrate}</bitrate><txFifoSize>100000</txFifoSize>
+<intrinsicDelay>0</intrinsicDelay><maxDistance>{reach}</maxDistance><rateErrorModel><errorUnit>packet</errorUnit>
+<errorRateExpr>0</errorRateExpr></rateErrorModel></CustomCommsDevice></vehicle>""")
+    return f"""<?xml version="1.0"?><UWSimScene><simulation><seed>1</seed><clock>realtime</clock>
+<world>{world}</world></simulation><CustomCommsChannel><id>0</id><propTimeIncPerMeter>{prop}</propTimeIncPerMeter>
+</CustomCommsChannel>{''.join(vs)}</UWSimScene>"""
+
+
+def where(i: int, t: float) -> tuple[float, float, float]:
+    return (100.0 * i + 2.0 * math.sin(t + i), 0.0, 10.0)     # a wobble: every sample is a real change
+
+
+# -- helper processes -------------------------------------------------------------------------------
+def role_poses(endpoint: str, world: str, n: int, hz: float, seconds: float) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    with zenoh.open(client(endpoint)) as s:
+        pubs = [s.declare_publisher(f"uwsimnet/{world}/pose/v{i}") for i in range(n)]
+        period = 1.0 / hz
+        t0 = time.monotonic()
+        k = 0
+        while time.monotonic() - t0 < seconds:
+            t = k * period
+            for i, p in enumerate(pubs):
+                p.put(msgpack.packb({"p": list(where(i, t))}))
+            k += 1
+            d = t0 + k * period - time.monotonic()
+            if d > 0:
+                time.sleep(d)
+
+
+def role_echo(endpoint: str) -> None:
+    c = zenoh.Config()
+    c.insert_json5("mode", '"router"')
+    c.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *a: stop.set())
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    with zenoh.open(c) as s:
+        pub = s.declare_publisher("bench/pong", express=True)
+        s.declare_subscriber("bench/ping", direct(lambda smp: pub.put(smp.payload.to_bytes())))
+        print("ready", flush=True)
+        while not stop.wait(0.2):
+            pass
+
+
+def role_ticker(endpoint: str, rate: float) -> None:
+    """The floor: the same realtime clock and an embedded router, but no simulation: events at
+    scheduled times put {t, epoch} on `bench/tick` (what a broker does at a frame's delivery time)."""
+    sys.path.insert(0, str(ROOT))
+    from uwsimnet_zenoh.engine.realtime import RealtimeClock
+    from uwsimnet_zenoh.engine.scheduler import Scheduler
+
+    sys.setswitchinterval(0.0005)
+    c = zenoh.Config()
+    c.insert_json5("mode", '"router"')
+    c.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    sched = Scheduler()
+    clock = RealtimeClock(sched)
+    signal.signal(signal.SIGINT, lambda *a: clock.stop())
+    signal.signal(signal.SIGTERM, lambda *a: clock.stop())
+    with zenoh.open(c) as s:
+        pub = s.declare_publisher("bench/tick", express=True)
+
+        def tick(k: int) -> None:
+            pub.put(msgpack.packb({"t": sched.now, "epoch": clock.wall_epoch()}))
+            sched.at(1.0 + (k + 1) / rate + 0.0037 * (k % 7), tick, k + 1)
+        sched.at(1.0, tick, 0)
+        clock.start()
+        print("ready", flush=True)
+        clock.done.wait()
+        clock.join(2)
+
+
+def bench_floor(seconds: float, rate: float) -> dict:
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    t = Sub([PY, __file__, "--role", "ticker", "--endpoint", ep, "--hz", str(rate)], "ready")
+    got: list[tuple[float, bytes]] = []
+    try:
+        with zenoh.open(client(ep)) as s:
+            s.declare_subscriber("bench/tick", direct(lambda smp: got.append((time.time(), smp.payload.to_bytes()))))
+            time.sleep(seconds)
+    finally:
+        t.stop()
+    err = [w - (m["epoch"] + m["t"]) for w, m in ((w, msgpack.unpackb(r)) for w, r in got)]
+    return {"n": len(err), "err_median": pct(err, 0.5), "err_p99": pct(err, 0.99),
+            "err_max": max(err, default=math.nan)}
+
+
+class Sub:
+    def __init__(self, argv: list[str], ready: str) -> None:
+        err = None if os.environ.get("BENCH_DEBUG") else subprocess.DEVNULL
+        self.p = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=err, text=True, bufsize=1)
+        self.out: list[str] = []
+        self.ready = threading.Event()
+        threading.Thread(target=self._read, args=(ready,), daemon=True).start()
+        if not self.ready.wait(30):
+            self.stop()
+            raise RuntimeError(f"{argv[:4]} did not start:\n{''.join(self.out)}")
+
+    def _read(self, ready: str) -> None:
+        for line in self.p.stdout:
+            self.out.append(line)
+            if line.startswith(ready):
+                self.ready.set()
+
+    def stop(self) -> str:
+        if self.p.poll() is None:
+            self.p.send_signal(signal.SIGINT)
+            try:
+                self.p.wait(20)
+            except subprocess.TimeoutExpired:
+                self.p.kill()
+                self.p.wait()
+        time.sleep(0.1)
+        return "".join(self.out)
+
+
+def broker(scene: str, endpoint: str, tmp: Path, name: str) -> Sub:
+    path = tmp / f"{name}.xml"
+    path.write_text(scene)
+    return Sub([PY, "-m", "uwsimnet_zenoh.cli", "run", str(path), "--clock", "realtime", "--listen", endpoint,
+                "--trace", str(tmp / f"{name}.jsonl")], "uwsimnet: running")
+
+
+def engine_late(out: str) -> tuple[float, float]:
+    m = re.search(r"late mean (\d+) us, max ([\d.]+) ms", out)
+    return (float(m.group(1)) * 1e-6, float(m.group(2)) * 1e-3) if m else (math.nan, math.nan)
+
+
+# -- 1. delivery error --------------------------------------------------------------------------------
+def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
+    world = f"rt{n}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    b = broker(scene_xml(n, world), ep, tmp, world)
+    poses = subprocess.Popen([PY, __file__, "--role", "poses", "--endpoint", ep, "--world", world, "--n", str(n),
+                              "--hz", str(pose_hz), "--seconds", str(seconds + 4)], cwd=ROOT)
+    got: list[tuple[float, bytes]] = []
+    epochs: list[float] = []
+    try:
+        with zenoh.open(client(ep)) as s:
+            s.declare_subscriber(f"uwsimnet/{world}/modem/*/rx", direct(lambda smp: got.append(
+                (time.time(), smp.payload.to_bytes()))))
+            s.declare_subscriber(f"uwsimnet/{world}/clock",
+                                 lambda smp: epochs.append(msgpack.unpackb(smp.payload.to_bytes())["epoch"]))
+            pubs = [s.declare_publisher(f"uwsimnet/{world}/modem/m{i}/tx", express=True) for i in range(n)]
+            time.sleep(1.5)                              # poses known everywhere
+            rate = {2: 10.0, 16: 2.0}.get(n, 1.0)        # frames per second per modem
+            period = 1.0 / rate
+            t0 = time.monotonic()
+            k = 0
+            sent = 0
+            while time.monotonic() - t0 < seconds:
+                for i, p in enumerate(pubs):             # staggered: modem i at t0 + (k + i/n) period
+                    d = t0 + (k + i / n) * period - time.monotonic()
+                    if d > 0:
+                        time.sleep(d)
+                    dst = i + 2 if i + 1 < n else i        # the next one on the line (the last: the previous)
+                    p.put(msgpack.packb({"dst": dst, "data": struct.pack("<d", time.time()) * 2}))
+                    sent += 1
+                k += 1
+            time.sleep(1.0)
+            for p in pubs:
+                p.undeclare()
+    finally:
+        poses.send_signal(signal.SIGINT)
+        poses.wait(10)
+        out = b.stop()
+    epoch = sorted(epochs)[len(epochs) // 2]
+    err, e2e = [], []
+    for wall, raw in got:
+        m = msgpack.unpackb(raw)
+        err.append(wall - (epoch + m["t_rx"]))
+        w_send = struct.unpack("<d", m["data"][:8])[0]
+        e2e.append((wall - w_send) - (m["t_rx"] - m["t_tx"]))
+    late_mean, late_max = engine_late(out)
+    return {"n": n, "sent": sent, "delivered": len(got), "pose_msgs_per_s": n * pose_hz,
+            "err_median": pct(err, 0.5), "err_p99": pct(err, 0.99), "err_max": max(err, default=math.nan),
+            "e2e_median": pct(e2e, 0.5), "e2e_p99": pct(e2e, 0.99),
+            "engine_late_mean": late_mean, "engine_late_max": late_max}
+
+
+# -- 2. broker overhead vs bare round trip ---------------------------------------------------------------
+def round_trips(s: zenoh.Session, put, arrived: threading.Event, stamps: list[float], count: int) -> list[float]:
+    rtts = []
+    for _ in range(count):
+        arrived.clear()
+        t = time.perf_counter()
+        put()
+        if not arrived.wait(2.0):
+            continue
+        rtts.append(stamps[-1] - t)
+        time.sleep(0.002)
+    return rtts
+
+
+def bench_overhead(count: int, tmp: Path) -> dict:
+    sys.setswitchinterval(0.0005)
+    payload = msgpack.packb({"dst": 2, "data": bytes(16)})
+    arrived = threading.Event()
+    stamps: list[float] = []
+
+    def hit(_smp) -> None:
+        stamps.append(time.perf_counter())
+        arrived.set()
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    echo = Sub([PY, __file__, "--role", "echo", "--endpoint", ep], "ready")
+    try:
+        with zenoh.open(client(ep)) as s:
+            s.declare_subscriber("bench/pong", direct(hit))
+            pub = s.declare_publisher("bench/ping", express=True)
+            time.sleep(0.5)
+            round_trips(s, lambda: pub.put(payload), arrived, stamps, 100)
+            bare = round_trips(s, lambda: pub.put(payload), arrived, stamps, count)
+    finally:
+        echo.stop()
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    b = broker(scene_xml(2, "zero", zero_delay=True), ep, tmp, "zero")
+    try:
+        with zenoh.open(client(ep)) as s:
+            s.declare_subscriber("uwsimnet/zero/modem/m1/rx", direct(hit))
+            pub = s.declare_publisher("uwsimnet/zero/modem/m0/tx", express=True)
+            time.sleep(0.5)
+            round_trips(s, lambda: pub.put(payload), arrived, stamps, 100)
+            via = round_trips(s, lambda: pub.put(payload), arrived, stamps, count)
+    finally:
+        b.stop()
+    return {"count": count, "bare_median": pct(bare, 0.5), "bare_p99": pct(bare, 0.99),
+            "broker_median": pct(via, 0.5), "broker_p99": pct(via, 0.99),
+            "overhead_median": pct(via, 0.5) - pct(bare, 0.5), "overhead_p99": pct(via, 0.99) - pct(bare, 0.99)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--role", choices=["main", "poses", "echo", "ticker"], default="main")
+    ap.add_argument("--endpoint")
+    ap.add_argument("--world")
+    ap.add_argument("--n", type=int)
+    ap.add_argument("--hz", type=float, default=50.0)
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--modems", default="2,16,64")
+    ap.add_argument("--round-trips", type=int, default=2000)
+    ap.add_argument("--markdown", action="store_true")
+    ap.add_argument("--rt", type=int, default=0, help="SCHED_RR priority for broker and apps (0: normal)")
+    a = ap.parse_args()
+    if a.role == "poses":
+        role_poses(a.endpoint, a.world, a.n, a.hz, a.seconds)
+        return
+    if a.role == "echo":
+        role_echo(a.endpoint)
+        return
+    if a.role == "ticker":
+        role_ticker(a.endpoint, a.hz)
+        return
+    sys.setswitchinterval(0.0005)
+    if a.rt:                 # the broker (env) and this process (the apps) under SCHED_RR
+        os.environ["UWSIMNET_RT_PRIORITY"] = str(a.rt)
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(a.rt))
+    load = os.getloadavg()
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        floor = bench_floor(a.seconds, 50.0)
+        rows = [bench_delivery(int(n), a.seconds, a.hz, tmp) for n in a.modems.split(",")]
+        ov = bench_overhead(a.round_trips, tmp)
+    load2 = os.getloadavg()
+    us = 1e6
+    zv = importlib.metadata.version("eclipse-zenoh")
+    print(f"# realtime benchmark {datetime.date.today()} on {platform.machine()}, {os.cpu_count()} cores,"
+          f" Python {platform.python_version()}, zenoh {zv}; load average before/after {load[0]:.2f}/{load2[0]:.2f}"
+          + (f"; broker and apps SCHED_RR {a.rt}" if a.rt else ""))
+    print()
+    print(f"Delivery error ({a.seconds:g} s per row, poses {a.hz:g} Hz per vehicle), microseconds:")
+    print()
+    print("| modems | pose msgs/s | frames delivered | error median | error p99 | error max |"
+          " app-to-app excess median | p99 | engine late mean | max |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    print(f"| floor: clock + router, no simulation | - | {floor['n']} | {floor['err_median'] * us:.0f} |"
+          f" {floor['err_p99'] * us:.0f} | {floor['err_max'] * us:.0f} | - | - | - | - |")
+    for r in rows:
+        cells = [r["n"], f"{r['pose_msgs_per_s']:.0f}", f"{r['delivered']}/{r['sent']}"]
+        cells += [f"{r[k] * us:.0f}" for k in ("err_median", "err_p99", "err_max", "e2e_median", "e2e_p99",
+                                               "engine_late_mean", "engine_late_max")]
+        print("| " + " | ".join(str(c) for c in cells) + " |")
+    print()
+    print(f"Broker overhead ({ov['count']} sequential round trips, 16 B payload, zero modelled delay), microseconds:")
+    print()
+    print("| path | median | p99 |")
+    print("|---|---|---|")
+    for label, k in (("bare Zenoh: app -> router+echo (Python) -> app", "bare"),
+                     ("app -> broker (tx -> engine -> rx) -> app", "broker"), ("overhead of the broker", "overhead")):
+        print(f"| {label} | {ov[k + '_median'] * us:.0f} | {ov[k + '_p99'] * us:.0f} |")
+    if not a.markdown:
+        print()
+        print(json.dumps({"floor": floor, "delivery": rows, "overhead": ov}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

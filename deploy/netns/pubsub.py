@@ -1,0 +1,75 @@
+"""A publisher and a subscriber that prove two emulated hosts exchange data through their routers.
+
+    python pubsub.py sub CONFIG KEY N          print each of N samples, exit 0 (exit 1 after TIMEOUT s)
+    python pubsub.py pub CONFIG KEY N [FILE]   wait until a subscriber matches (and FILE says "ready"),
+                                              then put N samples
+
+CONFIG is a client configuration rendered by `python -m uwsimnet_zenoh.bus.deploy`.  Every wait is
+bounded (TIMEOUT, default 20 s, from the environment); the session is always closed.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import sys
+import time
+from pathlib import Path
+
+import zenoh
+
+TIMEOUT = float(os.environ.get("TIMEOUT", "20"))
+
+
+def sub(conf: zenoh.Config, key: str, n: int) -> int:
+    q: queue.Queue[str] = queue.Queue()
+    with zenoh.open(conf) as s:
+        _sub = s.declare_subscriber(key, lambda smp: q.put(smp.payload.to_string()))
+        print("ready", flush=True)
+        deadline = time.monotonic() + TIMEOUT
+        got = 0
+        while got < n:
+            try:
+                msg = q.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                print(f"timeout: {got}/{n} samples", flush=True)
+                return 1
+            print(f"got {msg}", flush=True)
+            got += 1
+    return 0
+
+
+def pub(conf: zenoh.Config, key: str, n: int, ready_file: str | None) -> int:
+    deadline = time.monotonic() + TIMEOUT
+    if ready_file:
+        while "ready" not in (Path(ready_file).read_text() if Path(ready_file).exists() else ""):
+            if time.monotonic() > deadline:
+                print(f"timeout: {ready_file} never said ready", file=sys.stderr)
+                return 1
+            time.sleep(0.05)
+    with zenoh.open(conf) as s:
+        p = s.declare_publisher(key)
+        while not p.matching_status.matching:
+            if time.monotonic() > deadline:
+                print("timeout: no subscriber matched", file=sys.stderr)
+                return 1
+            time.sleep(0.05)
+        for i in range(n):
+            p.put(f"sample {i} from pid {os.getpid()}")
+        time.sleep(0.2)  # let the last samples leave before the session closes
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) < 4 or argv[0] not in ("pub", "sub"):
+        print(__doc__, file=sys.stderr)
+        return 2
+    zenoh.init_log_from_env_or("error")
+    conf = zenoh.Config.from_file(argv[1])
+    if argv[0] == "sub":
+        return sub(conf, argv[2], int(argv[3]))
+    return pub(conf, argv[2], int(argv[3]), argv[4] if len(argv) > 4 else None)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,186 @@
+"""`World`: a Zenoh session (client of the local router) plus the key space of one simulated world."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import zenoh
+
+from ._wire import DEFAULT_ENDPOINT, PREFIX, Keys, check_chunk, encode_pose, pack, unpack
+
+
+class GliError(RuntimeError):
+    """No simulator/router reachable, no reply, an ambiguous world, a refused control request."""
+
+
+def client_config(connect: str | Sequence[str] = DEFAULT_ENDPOINT, *, timeout_ms: int = 2000) -> zenoh.Config:
+    """Client mode, connected to `connect` only (no multicast scouting)."""
+    endpoints = [connect] if isinstance(connect, str) else list(connect)
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps(endpoints))
+    conf.insert_json5("connect/timeout_ms", str(int(timeout_ms)))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def discover_worlds(session: zenoh.Session, timeout: float = 2.0) -> list[str]:
+    """Names of the worlds whose brokers answer `uwsimnet/*/control/state`."""
+    found = set()
+    for r in session.get(f"{PREFIX}/*/control/state", timeout=timeout):
+        if r.ok is not None:
+            parts = str(r.ok.key_expr).split("/")
+            if len(parts) >= 2:
+                found.add(parts[1])
+    return sorted(found)
+
+
+class World:
+    """One simulated world on Zenoh.
+
+        with World("acoustic-apps") as world:           # connects to tcp/127.0.0.1:7447 (client mode)
+            modem = world.modem("alpha-modem")
+            modem.send(2, b"hello")
+
+    `name=None` asks the brokers reachable through the router which worlds exist and takes the only one.
+    Pass `session=` to reuse a session you opened (it is then not closed by `close()`), or `config=` for a
+    full Zenoh configuration (TLS, other endpoints).
+    """
+
+    def __init__(self, name: str | None = None, *, connect: str | Sequence[str] = DEFAULT_ENDPOINT,
+                 config: zenoh.Config | None = None, session: zenoh.Session | None = None,
+                 timeout: float = 2.0) -> None:
+        self._own = session is None
+        if session is None:
+            try:
+                session = zenoh.open(config if config is not None else client_config(connect))
+            except zenoh.ZError as e:
+                where = connect if isinstance(connect, str) else ", ".join(connect)
+                why = " ".join(str(e).split()).split(" at /")[0]            # no Rust source locations
+                raise GliError(f"cannot connect to {where}: {why} (is `uwsimnet run` or `uwsimnet router`"
+                               " running there?)") from None
+        self.session = session
+        try:
+            if name is None:
+                worlds = discover_worlds(session, timeout)
+                if len(worlds) != 1:
+                    raise GliError("no simulated world answers; give the world name" if not worlds else
+                                   f"several worlds answer ({', '.join(worlds)}); give one")
+                name = worlds[0]
+            self.name = check_chunk(name, "world")
+        except BaseException:
+            self._close_session()
+            raise
+        self.keys = Keys(self.name)
+        self._modems: list[Any] = []
+        self._pose_pubs: dict[str, Any] = {}
+        self._clock_sub: Any = None
+        self._clock: dict[str, Any] | None = None
+        self._clock_cond = threading.Condition()
+        self._closed = False
+
+    # -- lifecycle -------------------------------------------------------------------------------
+    def __enter__(self) -> World:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Undeclare everything this world declared; close the session if this object opened it."""
+        if self._closed:
+            return
+        self._closed = True
+        for m in list(self._modems):
+            m.close()
+        for p in self._pose_pubs.values():
+            _undeclare(p)
+        _undeclare(self._clock_sub)
+        self._close_session()
+
+    def _close_session(self) -> None:
+        if self._own:
+            with contextlib.suppress(Exception):
+                self.session.close()
+
+    # -- modems ----------------------------------------------------------------------------------
+    def modem(self, dev: str, **kw: Any):
+        """A `Modem` handle for dccommsId `dev` (see uwsimnet_gli.modem.Modem)."""
+        from .modem import Modem
+
+        return Modem(self, dev, **kw)
+
+    # -- poses -----------------------------------------------------------------------------------
+    def publish_pose(self, vehicle: str, p: Sequence[float], *, v: Sequence[float] | None = None,
+                     q: Sequence[float] | None = None, t: float | None = None) -> None:
+        """Publish a pose sample of `vehicle` (m, m/s, quaternion x y z w) on `pose/<vehicle>`."""
+        pub = self._pose_pubs.get(vehicle)
+        if pub is None:
+            pub = self._pose_pubs[vehicle] = self.session.declare_publisher(
+                self.keys.pose(check_chunk(vehicle, "vehicle")))
+        pub.put(encode_pose(p, v=v, q=q, t=t))
+
+    # -- simulation time -------------------------------------------------------------------------
+    def clock(self, timeout: float = 2.0) -> dict[str, Any] | None:
+        """The last `clock` sample ({t, epoch, speed, paused}); waits up to `timeout` for the first one."""
+        if self._clock_sub is None:
+            self._clock_sub = self.session.declare_subscriber(self.keys.clock, self._on_clock)
+        with self._clock_cond:
+            self._clock_cond.wait_for(lambda: self._clock is not None, timeout)
+            return self._clock
+
+    def _on_clock(self, sample: zenoh.Sample) -> None:
+        try:
+            m = unpack(sample.payload.to_bytes())
+        except Exception:  # noqa: BLE001
+            return
+        if isinstance(m, dict) and isinstance(m.get("t"), int | float):
+            with self._clock_cond:
+                self._clock = m
+                self._clock_cond.notify_all()
+
+    def sim_time(self, timeout: float = 2.0) -> float | None:
+        """Current simulation time estimated from the wall clock and the last clock sample."""
+        c = self.clock(timeout)
+        if c is None:
+            return None
+        if c.get("paused") or not isinstance(c.get("epoch"), int | float):
+            return float(c["t"])
+        return (time.time() - float(c["epoch"])) * float(c.get("speed") or 1.0)
+
+    # -- control ---------------------------------------------------------------------------------
+    def control(self, op: str, timeout: float = 2.0, **request: Any) -> dict[str, Any]:
+        """Run a control operation (state, pause, resume, move, add_device, remove_device); the first
+        successful reply, or GliError with the broker's error."""
+        replies = self.control_all(op, timeout=timeout, **request)
+        if not replies:
+            raise GliError(f"control/{op}: no reply from world {self.name!r}")
+        for r in replies:
+            if r.get("ok"):
+                return r
+        raise GliError(f"control/{op}: {replies[0].get('error', 'refused')}")
+
+    def control_all(self, op: str, timeout: float = 2.0, **request: Any) -> list[dict[str, Any]]:
+        """Every broker's reply (several brokers serve a world split by channels)."""
+        out = []
+        for r in self.session.get(self.keys.control(check_chunk(op, "operation")), payload=pack(request),
+                                  timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE):
+            if r.ok is not None:
+                try:
+                    m = unpack(r.ok.payload.to_bytes())
+                except Exception:  # noqa: BLE001
+                    continue
+                if isinstance(m, dict):
+                    out.append(m)
+        return out
+
+
+def _undeclare(e: Any) -> None:
+    if e is not None:
+        with contextlib.suppress(Exception):
+            e.undeclare()

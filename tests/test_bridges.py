@@ -1,0 +1,276 @@
+"""Bridges: the socket bridge (with the C client built by cc) and the dccomms POSIX message-queue bridge."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import shutil
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import device, scene, vehicle
+from uwsimnet_zenoh.bridges import posix_mq
+from uwsimnet_zenoh.bridges import socket_bridge as sb
+from uwsimnet_zenoh.bridges.mq_bridge import GliQueueClient, MqBridge
+from uwsimnet_zenoh.drivers import dccomms_framing as dl
+from uwsimnet_zenoh.drivers.sim_backend import SimWorld
+
+WAIT = 5.0
+C_SOURCE = Path(__file__).resolve().parent.parent / "gli_clients" / "c" / "gli_socket_client.c"
+_names = itertools.count()
+
+
+def until(cond, timeout: float = WAIT, step: float = 0.01) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(step)
+    return cond()
+
+
+def three_modems():
+    """A (the C program, socket bridge), B (a Python client, socket bridge), C (a dccomms application,
+    message queues), on one half-duplex channel: the tests keep traffic sequential, since frames sent at
+    the same time would collide (the simulator being right, not the bridges being wrong)."""
+    kw = {"bitrate": 4800, "intrinsic_tx_s": 0.001}    # 1 ms between back-to-back frames, as UWSim-NET scenes
+    return scene([vehicle("va", (0, 0, 0), device("dev-a", 1, **kw)),
+                  vehicle("vb", (60, 0, 0), device("dev-b", 2, **kw)),
+                  vehicle("vc", (0, 60, 0), device("dev-c", 3, **kw))])
+
+
+@pytest.fixture
+def world():
+    w = SimWorld(three_modems())
+    yield w
+    w.close()
+
+
+@pytest.fixture
+def closing():
+    things = []
+    yield things
+    for t in reversed(things):
+        t.close()
+
+
+# =================================================================================================
+# socket bridge wire format
+# =================================================================================================
+def test_wire_format_vectors():
+    assert sb.encode_tx(2, b"hi", 7) == b"\x00\x00\x00\x09\x02\x00\x02\x00\x00\x00\x07hi"
+    assert sb.encode_hello(1, 2048, "dev-a") == b"\x00\x00\x00\x0a\x01\x00\x01\x08\x00dev-a"
+    rx = sb.encode_rx(1, 2, b"x", 5, 1.5, 2.0)
+    assert rx[:4] == (26).to_bytes(4, "big") and rx[4] == 3
+    assert sb.decode_body(rx[4:]) == sb.Rx(1, 2, 5, 1.5, 2.0, b"x")
+    st = sb.encode_status(7, "acked", 3.25, None)
+    assert sb.decode_body(st[4:]) == sb.Status(7, "acked", 3.25, "")
+    assert sb.decode_body(sb.encode_status(1, "dropped", 0.0, "fifo")[4:]).reason == "fifo"
+    assert sb.decode_datagram(sb.encode_subscribe()) == sb.Subscribe()
+
+
+def test_stream_decoder_partial_and_malformed_input():
+    d = sb.StreamDecoder()
+    wire = sb.encode_tx(2, b"a\r\nb", 1) + sb.encode_tx(3, b"", 0)
+    msgs = [m for i in range(len(wire)) for m in d.feed(wire[i:i + 1])[0]]
+    assert msgs == [sb.Tx(2, 1, b"a\r\nb"), sb.Tx(3, 0, b"")]
+    msgs, errs = d.feed(b"\x00\x00\x00\x02\x09\x00" + b"\x00\x00\x00\x03\x02\x00\x01" + sb.encode_tx(4, b"ok"))
+    assert msgs == [sb.Tx(4, 0, b"ok")] and len(errs) == 2 and "unknown message type 9" in errs[0]
+    msgs, errs = d.feed(b"\xff\xff\xff\xff")
+    assert d.broken and "out of range" in errs[0]
+    for bad in (b"\x00\x00", b"\x00\x00\x00\x05\x02", sb.encode_tx(1, bytes(sb.MAX_DATA + 1))):
+        with pytest.raises(sb.WireError):
+            sb.decode_datagram(bad)
+
+
+# =================================================================================================
+# the C program and a Python client, through the simulator
+# =================================================================================================
+@pytest.fixture(scope="module")
+def c_client(tmp_path_factory):
+    cc = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    if cc is None:
+        pytest.skip("no C compiler (cc) on this machine: the C client cannot be built")
+    exe = tmp_path_factory.mktemp("c") / "gli_socket_client"
+    subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-o", str(exe), str(C_SOURCE)],
+                   check=True, timeout=60)
+    return exe
+
+
+def test_c_program_and_python_client_exchange_frames(world, closing, c_client):
+    bra = sb.SocketBridge(world.backend("dev-a")).start()
+    brb = sb.SocketBridge(world.backend("dev-b")).start()
+    closing += [bra, brb]
+    world.start()
+    py = sb.SocketBridgeClient("127.0.0.1", brb.tcp_port)
+    closing.append(py)
+    assert (py.address, py.id) == (2, "dev-b")
+    # the C program sends 3 frames to B, then waits for 2 frames
+    proc = subprocess.Popen([str(c_client), "127.0.0.1", str(bra.tcp_port), "2", "3", "2", "8", "hi from C"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        got = [py.receive(WAIT) for _ in range(3)]
+        assert [(m.src, m.dst, m.data) for m in got if m] == [(1, 2, f"hi from C #{i}".encode()) for i in (1, 2, 3)]
+        assert all(m.t_rx > m.t_tx >= 0 for m in got)
+        py.send(1, b"hello C \x00\xff", tag=11)
+        py.send(1, b"second", tag=12)
+        assert py.wait_status(12, "delivered", WAIT) is not None
+        out, err = proc.communicate(timeout=WAIT + 5)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, (out, err)
+    lines = out.splitlines()
+    assert lines[0] == "HELLO address=1 max_payload=2048 id=dev-a"
+    rx = [x for x in lines if x.startswith("RX ")]
+    assert len(rx) == 2 and rx[0].startswith("RX src=2 dst=1 ") and rx[0].endswith("data=hello C \\x00\\xff")
+    statuses = [x for x in lines if x.startswith("STATUS ")]
+    for tag in (1, 2, 3):
+        assert any(f"tag={tag} event=sent" in x for x in statuses)
+        assert any(f"tag={tag} event=delivered" in x for x in statuses)
+    assert lines[-1] == "DONE rx=2 finals=3"
+    assert [s.event for s in py.statuses if s.tag == 11][:2] == ["queued", "sent"]
+
+
+def test_socket_bridge_errors_and_udp(world, closing):
+    br = sb.SocketBridge(world.backend("dev-a"), udp_port=0).start()
+    py_b = sb.SocketBridge(world.backend("dev-b")).start()
+    closing += [br, py_b]
+    world.start()
+    b = sb.SocketBridgeClient("127.0.0.1", py_b.tcp_port)
+    closing.append(b)
+    # UDP: subscribe, get HELLO, send, receive
+    u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    closing.append(u)
+    u.settimeout(WAIT)
+    u.sendto(sb.encode_subscribe(), ("127.0.0.1", br.udp_port))
+    assert sb.decode_datagram(u.recv(4096)) == sb.Hello(1, 2048, "dev-a")
+    u.sendto(b"\x00\x00\x00\x05\x02\x00", ("127.0.0.1", br.udp_port))          # length lies
+    assert isinstance(sb.decode_datagram(u.recv(4096)), sb.Error)
+    u.sendto(sb.encode_tx(2, b"by udp", 5), ("127.0.0.1", br.udp_port))
+    m = b.receive(WAIT)
+    assert m is not None and (m.src, m.data) == (1, b"by udp")
+    statuses = [sb.decode_datagram(u.recv(4096)) for _ in range(2)]
+    assert [(s.tag, s.event) for s in statuses] == [(5, "queued"), (5, "sent")]
+    b.send(1, b"back")
+    while True:                                   # statuses of frame 5 may come first
+        msg = sb.decode_datagram(u.recv(4096))
+        if isinstance(msg, sb.Rx):
+            break
+    assert (msg.src, msg.dst, msg.data) == (2, 1, b"back")
+    # TCP: a bad message is answered with ERROR and the connection lives; a bad length closes it
+    t = sb.SocketBridgeClient("127.0.0.1", br.tcp_port)
+    closing.append(t)
+    t.send_raw(b"\x00\x00\x00\x01\x03")                               # an RX with no fields
+    t.send(2, b"still fine", tag=1)
+    assert t.wait_status(1, "sent", WAIT) and any("too short" in e for e in t.errors)
+    t.send_raw(b"\x7f\xff\xff\xff")
+    assert until(lambda: t._read(0.1) is False)                           # closed by the bridge
+    assert any("out of range" in e for e in t.errors)
+    assert br.counters["bad_messages"] >= 3
+
+
+# =================================================================================================
+# dccomms POSIX message queues
+# =================================================================================================
+@pytest.fixture
+def qname():
+    names = []
+
+    def make() -> str:
+        n = f"uwt{os.getpid()}x{next(_names)}"
+        names.append(n)
+        return n
+    yield make
+    for n in names:
+        for q in (dl.tx_queue_name(n), dl.rx_queue_name(n)):
+            posix_mq.MessageQueue.unlink(q)
+
+
+pytestmark_mq = pytest.mark.skipif(not posix_mq.available(), reason="POSIX message queues need Linux librt")
+
+
+@pytestmark_mq
+def test_message_queue_basics(qname):
+    name = "/" + qname()
+    q = posix_mq.MessageQueue.open(name, maxmsg=2, msgsize=64, nonblock=True)
+    try:
+        assert q.getattr()["maxmsg"] == 2 and q.msgsize == 64
+        q.send(b"one")
+        q.send(b"two")
+        with pytest.raises(BlockingIOError):
+            q.send(b"three")
+        assert q.receive(0) == b"one" and q.receive(0.1) == b"two" and q.receive(0) is None
+        with pytest.raises(posix_mq.MqError):
+            q.send(bytes(65))
+    finally:
+        q.close()
+        assert posix_mq.MessageQueue.unlink(name) and not posix_mq.MessageQueue.unlink(name)
+
+
+@pytestmark_mq
+def test_dccomms_queue_client_exchanges_frames_with_a_python_client(world, closing, qname):
+    cid = qname()
+    mq = MqBridge(world.backend("dev-c"), cid)
+    brb = sb.SocketBridge(world.backend("dev-b")).start()
+    closing += [brb]
+    app = GliQueueClient(cid, address=3)        # the application may start first: queues are created
+    closing.append(app)
+    mq.start()
+    closing.append(mq)
+    world.start()
+    assert app.wait_ready(WAIT)                 # the PHY side announces READY (dccomms Start())
+    py = sb.SocketBridgeClient("127.0.0.1", brb.tcp_port)
+    closing.append(py)
+    # dccomms app -> Python
+    app.send(2, b"from dccomms \x55\x55\r\n")
+    m = py.receive(WAIT)
+    assert m is not None and (m.src, m.dst, m.data) == (3, 2, b"from dccomms \x55\x55\r\n")
+    # Python -> dccomms app: a DataLinkFrame in a FRAME message
+    py.send(3, b"to dccomms", tag=4)
+    f = app.receive(WAIT)
+    assert f == dl.DataLinkFrame(3, 2, b"to dccomms")
+    assert app.phy_state == dl.PHY_READY       # every frame the app wrote was answered READY
+    # a corrupted frame and a garbage message are counted and skipped; REQ_STATE is answered
+    bad = bytearray(dl.encode_frame(2, 3, b"broken"))
+    bad[-2] ^= 0xFF
+    app.send_raw(bytes(bad))
+    app.tx.send(b"\x09junk")
+    app.tx.send(dl.gli_req_state())
+    app.send(2, b"after the junk")
+    m = py.receive(WAIT)
+    assert m is not None and m.data == b"after the junk"
+    assert until(lambda: mq.counters["bad_frames"] == 1 and mq.counters["bad_messages"] == 1)
+    # (the app's first REQ_STATE, sent before the bridge started, was cleared with the stale input)
+    assert mq.counters["req_state"] == 1 and mq.counters["cleared"] == 1 and mq.counters["tx"] == 2
+    assert py.receive(0.3) is None              # nothing else got through
+
+
+@pytestmark_mq
+def test_mq_bridge_keeps_frames_while_the_application_is_slow(world, closing, qname):
+    cid = qname()
+    mq = MqBridge(world.backend("dev-c"), cid)
+    brb = sb.SocketBridge(world.backend("dev-b")).start()
+    closing += [brb]
+    mq.start()
+    closing.append(mq)
+    world.start()
+    py = sb.SocketBridgeClient("127.0.0.1", brb.tcp_port)
+    closing.append(py)
+    for i in range(14):                         # more than the queue's 10 messages
+        py.send(3, b"n%d" % i)
+    assert until(lambda: mq.counters["rx"] == 14, timeout=WAIT)
+    assert mq.info()["backlog"] > 0             # the queue is full: the rest waits in the bridge
+    app = GliQueueClient(cid, address=3)
+    closing.append(app)
+    # a dccomms app drains its rx queue when it starts (ClearInputQueue): what was queued is lost,
+    # what the bridge held back arrives
+    got = []
+    while (f := app.receive(1.0)) is not None:
+        got.append(f.payload)
+    assert got and got == [b"n%d" % i for i in range(14 - len(got), 14)]
+    assert mq.info()["backlog"] == 0

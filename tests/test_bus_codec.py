@@ -1,0 +1,137 @@
+"""msgpack codecs with validation (bus/codec.py), and the client's encoding against them."""
+
+from __future__ import annotations
+
+import contextlib
+
+import msgpack
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from uwsimnet_zenoh.bus import codec
+from uwsimnet_zenoh.bus.codec import CodecError
+
+
+def test_tx_roundtrip():
+    r = codec.decode_tx(codec.encode_tx(2, b"hello", tag=7))
+    assert (r.dst, r.data, r.tag, r.flow) == (2, b"hello", 7, None)
+    r = codec.decode_tx(codec.encode_tx(255, b"", flow="f1"))
+    assert (r.dst, r.data, r.tag, r.flow) == (255, b"", None, "f1")
+
+
+def test_tx_ignores_unknown_keys_and_nil_tag():
+    r = codec.decode_tx(msgpack.packb({"dst": 1, "data": b"x", "tag": None, "future": [1, 2]}))
+    assert r.tag is None and r.data == b"x"
+
+
+@pytest.mark.parametrize("msg, reason", [
+    (b"", "malformed"),
+    (b"\xc1", "malformed"),                                   # never-used msgpack byte
+    (b"\x92\x01", "malformed"),                               # truncated array
+    (msgpack.packb({"dst": 1, "data": b"x"}) + b"\x00", "malformed"),   # trailing bytes
+    (b"\xa2\xff\xfe", "malformed"),                           # str that is not UTF-8
+    (msgpack.packb([1, 2]), "invalid"),
+    (msgpack.packb("text"), "invalid"),
+    (msgpack.packb({"data": b"x"}), "invalid"),
+    (msgpack.packb({"dst": "2", "data": b"x"}), "invalid"),
+    (msgpack.packb({"dst": True, "data": b"x"}), "invalid"),
+    (msgpack.packb({"dst": -1, "data": b"x"}), "invalid"),
+    (msgpack.packb({"dst": 70000, "data": b"x"}), "invalid"),
+    (msgpack.packb({"dst": 1.5, "data": b"x"}), "invalid"),
+    (msgpack.packb({"dst": 1, "data": "text, not bin"}), "invalid"),
+    (msgpack.packb({"dst": 1}), "invalid"),
+    (msgpack.packb({"dst": 1, "data": b"x", "tag": "t"}), "invalid"),
+    (msgpack.packb({"dst": 1, "data": b"x", "tag": 1.0}), "invalid"),
+    (msgpack.packb({"dst": 1, "data": b"x", "flow": 3}), "invalid"),
+    (msgpack.packb({"dst": 1, "data": msgpack.ExtType(5, b"z")}), "invalid"),
+])
+def test_tx_refusals(msg, reason):
+    with pytest.raises(CodecError) as e:
+        codec.decode_tx(msg)
+    assert e.value.reason == reason
+
+
+def test_tx_refusal_keeps_a_readable_tag():
+    with pytest.raises(CodecError) as e:
+        codec.decode_tx(msgpack.packb({"dst": "x", "data": b"", "tag": 42}))
+    assert e.value.tag == 42
+
+
+def test_tx_too_large_is_refused_before_decoding():
+    big = codec.encode_tx(1, bytes(codec.MAX_TX_MESSAGE))
+    with pytest.raises(CodecError) as e:
+        codec.decode_tx(big)
+    assert e.value.reason == "toolarge"
+    assert codec.decode_tx(big, limit=len(big)).data == bytes(codec.MAX_TX_MESSAGE)
+
+
+def test_deep_nesting_is_malformed_not_a_crash():
+    with pytest.raises(CodecError):
+        codec.decode_tx(b"\x91" * 5000 + b"\x00")
+
+
+@settings(max_examples=300)
+@given(st.binary(max_size=200))
+def test_random_bytes_only_raise_codec_errors(raw):
+    for dec in (codec.decode_tx, codec.decode_pose, codec.decode_status, codec.decode_rx, codec.decode_request):
+        with contextlib.suppress(CodecError):
+            dec(raw)
+
+
+values = st.recursive(st.none() | st.booleans() | st.integers(-2**63, 2**64 - 1) | st.floats() | st.text(max_size=5)
+                      | st.binary(max_size=5),
+                      lambda c: st.lists(c, max_size=3) | st.dictionaries(st.text(max_size=4), c, max_size=4),
+                      max_leaves=10)
+
+
+@settings(max_examples=300)
+@given(st.dictionaries(st.sampled_from(["dst", "data", "tag", "flow", "p", "v", "q", "t", "x"]), values,
+                       max_size=6))
+def test_wrong_types_only_raise_codec_errors(m):
+    raw = msgpack.packb(m, use_bin_type=True)
+    for dec in (codec.decode_tx, codec.decode_pose, codec.decode_request):
+        try:
+            dec(raw)
+        except CodecError as e:
+            assert e.reason in ("invalid", "malformed", "toolarge")
+
+
+def test_rx_and_status_roundtrip():
+    f = codec.decode_rx(codec.encode_rx(1, 2, b"abc", 5, 1.25, 1.5))
+    assert (f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx) == (1, 2, b"abc", 5, 1.25, 1.5)
+    raw = codec.encode_status(9, "dropped", "fifo", 3.0)
+    assert msgpack.unpackb(raw) == {"tag": 9, "event": "dropped", "reason": "fifo", "t": 3.0}
+    s = codec.decode_status(raw)
+    assert (s.tag, s.event, s.reason, s.t) == (9, "dropped", "fifo", 3.0)
+    assert list(msgpack.unpackb(codec.encode_rx(1, 2, b"", 0, 0, 0))) == ["src", "dst", "data", "seq", "t_tx", "t_rx"]
+
+
+def test_pose():
+    p = codec.decode_pose(codec.encode_pose((1, 2, 3), t=4.0, v=(0.5, 0, 0), q=(0, 0, 0, 1)))
+    assert p.p == (1.0, 2.0, 3.0) and p.t == 4.0 and p.v == (0.5, 0.0, 0.0) and p.q == (0.0, 0.0, 0.0, 1.0)
+    assert codec.decode_pose(msgpack.packb({"p": [1, 2, 3]})).v is None
+    for bad in ({"p": [1, 2]}, {"p": [1, 2, float("nan")]}, {"p": [1, 2, "3"]}, {}, {"p": [1, 2, 3], "v": [1]},
+                {"p": [1, 2, 3], "t": "now"}, {"p": [True, 2, 3]}):
+        with pytest.raises(CodecError):
+            codec.decode_pose(msgpack.packb(bad))
+
+
+def test_request():
+    assert codec.decode_request(None) == {} and codec.decode_request(b"") == {}
+    assert codec.decode_request(codec.pack({"vehicle": "a"})) == {"vehicle": "a"}
+    with pytest.raises(CodecError):
+        codec.decode_request(codec.pack({1: 2}))
+
+
+def test_client_wire_matches_the_broker_codec():
+    gli = pytest.importorskip("uwsimnet_gli._wire")
+    r = codec.decode_tx(gli.encode_tx(3, b"zz", 11, "flowA"))
+    assert (r.dst, r.data, r.tag, r.flow) == (3, b"zz", 11, "flowA")
+    p = codec.decode_pose(gli.encode_pose((1, 2, 3), v=(1, 0, 0), t=2.0))
+    assert p.p == (1.0, 2.0, 3.0) and p.v == (1.0, 0.0, 0.0)
+    f = gli.decode_rx(codec.encode_rx(1, 2, b"d", 3, 0.5, 0.75), "m")
+    assert (f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, f.modem) == (1, 2, b"d", 3, 0.5, 0.75, "m")
+    s = gli.decode_status(codec.encode_status(None, "queued", None, 1.0))
+    assert (s.tag, s.event, s.reason, s.t) == (None, "queued", None, 1.0)
+    assert gli.decode_rx(b"\xc1") is None and gli.decode_status(b"junk") is None

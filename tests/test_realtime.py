@@ -1,0 +1,200 @@
+"""The realtime clock (engine/realtime.py): wall-time events, the thread-safe inbox, pause, speed, stop.
+
+Bounds on timing are generous (tens of ms) so a loaded CI machine does not fail them; the precise
+figures are in bench/bench_realtime.py and docs/benchmarks.md."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from tests.conftest import device, scene, vehicle
+from uwsimnet_zenoh.engine.network import Network
+from uwsimnet_zenoh.engine.realtime import RealtimeClock, run_for
+from uwsimnet_zenoh.engine.scheduler import Scheduler
+
+SLACK = 0.05     # s: what a loaded machine may add
+
+
+@pytest.fixture
+def clock():
+    clocks = []
+
+    def make(sched=None, **kw):
+        c = RealtimeClock(sched or Scheduler(), **kw)
+        clocks.append(c)
+        return c
+    yield make
+    for c in clocks:
+        c.stop()
+        assert c.join(5.0), "engine thread did not stop"
+
+
+def test_events_run_at_their_wall_time_with_modelled_now(clock):
+    c = clock()
+    s = c.sched
+    seen = []
+    t0 = time.perf_counter()
+    for t in (0.02, 0.05, 0.05, 0.11, 0.2):
+        s.at(t, lambda t=t: seen.append((t, s.now, time.perf_counter() - t0, threading.current_thread().name)))
+    c.start()
+    deadline = time.monotonic() + 5
+    while len(seen) < 5 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert [x[0] for x in seen] == [0.02, 0.05, 0.05, 0.11, 0.2]
+    for t, now, wall, thread in seen:
+        assert now == t                         # sched.now is the modelled time, exactly
+        assert t - 0.002 <= wall <= t + SLACK   # and it ran when the wall clock got there
+        assert thread == "uwsimnet-engine"
+    assert c.stats()["events"] == 5
+
+
+def test_call_soon_runs_on_the_engine_thread_at_the_time_of_the_call(clock):
+    c = clock()
+    c.start()
+    time.sleep(0.05)
+    done = threading.Event()
+    got = {}
+
+    def item(x):
+        got.update(x=x, now=c.sched.now, thread=threading.current_thread().name)
+        done.set()
+    before = c.now()
+    c.call_soon(item, 42)
+    after = c.now()
+    assert done.wait(2)
+    assert got["x"] == 42 and got["thread"] == "uwsimnet-engine"
+    assert before <= got["now"] <= after
+
+
+def test_call_soon_from_many_threads_keeps_each_threads_order(clock):
+    c = clock()
+    out = []
+    c.start()
+
+    def producer(k):
+        for i in range(200):
+            c.call_soon(out.append, (k, i))
+    ths = [threading.Thread(target=producer, args=(k,)) for k in range(4)]
+    for t in ths:
+        t.start()
+    for t in ths:
+        t.join()
+    assert c.submit(lambda: None).result(2) is None
+    assert len(out) == 800
+    for k in range(4):
+        assert [i for kk, i in out if kk == k] == list(range(200))
+
+
+def test_submit_returns_result_and_exception(clock):
+    c = clock()
+    c.start()
+    assert c.submit(lambda a, b: a + b, 2, 3).result(2) == 5
+    with pytest.raises(ZeroDivisionError):
+        c.submit(lambda: 1 / 0).result(2)
+
+
+def test_an_event_that_raises_does_not_stop_the_clock(clock):
+    errors = []
+    c = clock(on_error=errors.append)
+    fired = threading.Event()
+    c.sched.at(0.01, lambda: 1 / 0)
+    c.sched.at(0.03, fired.set)
+    c.call_soon(lambda: [][1])
+    c.start()
+    assert fired.wait(2)
+    assert c.errors == 2 and len(errors) == 2
+    assert c.running
+
+
+def test_pause_freezes_simulation_time(clock):
+    c = clock()
+    fired = []
+    c.sched.at(0.15, lambda: fired.append(time.perf_counter()))
+    c.start()
+    time.sleep(0.05)
+    c.pause()
+    t_paused = c.now()
+    time.sleep(0.2)
+    assert c.paused and c.now() == t_paused
+    assert not fired                          # due at 0.15 sim, but sim time stands at ~0.05
+    ran = c.submit(lambda: c.sched.now).result(2)
+    assert ran == pytest.approx(t_paused, abs=1e-9)     # the inbox still runs, at the frozen time
+    t_resume = time.perf_counter()
+    c.resume()
+    deadline = time.monotonic() + 2
+    while not fired and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert fired
+    assert fired[0] - t_resume == pytest.approx(0.15 - t_paused, abs=SLACK)
+
+
+def test_speed_factor(clock):
+    c = clock(speed=4.0)
+    fired = threading.Event()
+    c.sched.at(0.4, fired.set)
+    t0 = time.perf_counter()
+    c.start()
+    assert fired.wait(2)
+    assert time.perf_counter() - t0 == pytest.approx(0.1, abs=SLACK)
+    assert c.wall_epoch() == pytest.approx(time.time() - c.now() / 4.0, abs=0.01)
+
+
+def test_until_ends_the_run_there(clock):
+    c = clock(until=0.1)
+    late = []
+    c.sched.at(0.05, lambda: None)
+    c.sched.at(0.5, late.append, 1)
+    t0 = time.perf_counter()
+    c.start()
+    assert c.done.wait(2)
+    assert time.perf_counter() - t0 == pytest.approx(0.1, abs=SLACK)
+    assert c.sched.now == 0.1 and not late
+
+
+def test_stop_wakes_an_idle_clock_at_once(clock):
+    c = clock()
+    c.start()
+    time.sleep(0.02)
+    t0 = time.perf_counter()
+    c.stop()
+    assert c.join(1.0)
+    assert time.perf_counter() - t0 < 0.5
+
+
+def test_run_for_helper():
+    c = RealtimeClock(Scheduler())
+    t0 = time.perf_counter()
+    run_for(c, 0.05)
+    assert not c.running and time.perf_counter() - t0 < 1.0
+
+
+def test_bad_speed():
+    with pytest.raises(ValueError):
+        RealtimeClock(Scheduler(), speed=0)
+
+
+def test_a_network_in_realtime_delivers_after_the_modelled_delay(clock):
+    """Frames handed over from another thread arrive at their modelled time, in wall time too."""
+    sc = scene([vehicle("a", (0, 0, 0), device("a-m", 1, bitrate=10_000)),
+                vehicle("b", (150, 0, 0), device("b-m", 2, bitrate=10_000))], duration=5)
+    net = Network(sc, flows=False)
+    got = []
+    net.modems["b-m"].on_receive.append(lambda m, f, t: got.append((f.t_enq, t, time.perf_counter())))
+    c = clock(net.sched)
+    c.start()
+    sent = []
+    for _ in range(3):
+        sent.append(time.perf_counter())
+        c.call_soon(lambda: net.modems["a-m"].send(2, 40, data=b"x" * 40))
+        time.sleep(0.15)
+    deadline = time.monotonic() + 3
+    while len(got) < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(got) == 3
+    modelled = 150 / 1500 + 40 * 8 / 10_000               # propagation + transmission
+    for (t_enq, t_rx, wall), w_sent in zip(got, sent, strict=True):
+        assert t_rx - t_enq == pytest.approx(modelled, abs=1e-9)
+        assert wall - w_sent == pytest.approx(modelled, abs=SLACK)

@@ -1,0 +1,220 @@
+"""msgpack codecs for the payloads of the key space, with validation (docs/gli-protocol.md).
+
+Every decoder takes the raw bytes of a sample and returns a small record or raises `CodecError`, whose
+`reason` is the token the broker puts in the `dropped` status it answers with:
+
+    toolarge   the message is longer than the limit (checked before decoding anything)
+    malformed  not one msgpack value (random bytes, truncated, trailing bytes, bad UTF-8)
+    invalid    msgpack, but not the map the protocol asks for (missing field, wrong type, out of range)
+
+Nothing here raises anything else, whatever the input: the decoders are fuzzed in tests/test_bus_codec.py.
+Unknown map keys are ignored (a newer client may send more); encoders write exactly the documented keys.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import msgpack
+
+MAX_TX_MESSAGE = 65536
+"""Default limit for a `tx` message on the wire, in bytes (frames themselves are limited by the modem)."""
+MAX_SMALL_MESSAGE = 4096
+"""Limit for pose samples and control requests."""
+MAX_ADDRESS = 65535
+STATUS_EVENTS = ("queued", "sent", "dropped", "acked", "failed")
+_INT64_MIN, _UINT64_MAX = -(2**63), 2**64 - 1
+
+
+class CodecError(ValueError):
+    """A message that cannot be accepted: `reason` is a status token, `detail` says what exactly.
+
+    `tag` is the message's tag when it could be read (so the dropped status can carry it)."""
+
+    def __init__(self, reason: str, detail: str, tag: int | None = None) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+        self.tag = tag
+
+
+def pack(obj: Any) -> bytes:
+    """msgpack with bin for bytes and str for text (what every decoder here expects)."""
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+def unpack(raw: bytes | bytearray | memoryview, limit: int) -> Any:
+    """One msgpack value, or CodecError (toolarge / malformed)."""
+    n = len(raw)
+    if n > limit:
+        raise CodecError("toolarge", f"message of {n} bytes, the limit is {limit}")
+    if n == 0:
+        raise CodecError("malformed", "empty message")
+    try:
+        return msgpack.unpackb(raw, raw=False, strict_map_key=False, use_list=True)
+    except msgpack.ExtraData:
+        raise CodecError("malformed", "trailing bytes after the msgpack value") from None
+    except Exception as e:  # noqa: BLE001 - msgpack raises a zoo of types on bad input
+        raise CodecError("malformed", f"not msgpack ({type(e).__name__})") from None
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _is_num(x: Any) -> bool:
+    return (isinstance(x, int | float) and not isinstance(x, bool)) and math.isfinite(x)
+
+
+def _map(obj: Any, what: str) -> dict:
+    if not isinstance(obj, dict):
+        raise CodecError("invalid", f"{what} must be a msgpack map, got {type(obj).__name__}")
+    return obj
+
+
+def _tag(m: dict) -> int | None:
+    tag = m.get("tag")
+    return tag if _is_int(tag) and _INT64_MIN <= tag <= _UINT64_MAX else None
+
+
+def _vec(m: dict, key: str, n: int, required: bool) -> tuple[float, ...] | None:
+    v = m.get(key)
+    if v is None:
+        if required:
+            raise CodecError("invalid", f"missing {key!r}")
+        return None
+    if not isinstance(v, list) or len(v) != n or not all(_is_num(x) for x in v):
+        raise CodecError("invalid", f"{key!r} must be an array of {n} finite numbers")
+    return tuple(float(x) for x in v)
+
+
+# -- tx: app -> modem ---------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class TxRequest:
+    dst: int
+    data: bytes
+    tag: int | None = None
+    flow: str | None = None
+
+
+def encode_tx(dst: int, data: bytes, tag: int | None = None, flow: str | None = None) -> bytes:
+    m: dict[str, Any] = {"dst": dst, "data": bytes(data)}
+    if tag is not None:
+        m["tag"] = tag
+    if flow is not None:
+        m["flow"] = flow
+    return pack(m)
+
+
+def decode_tx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> TxRequest:
+    m = _map(unpack(raw, limit), "a tx message")
+    tag = _tag(m)
+    if "tag" in m and m["tag"] is not None and tag is None:
+        raise CodecError("invalid", "'tag' must be an integer or nil")
+    dst = m.get("dst")
+    if not _is_int(dst) or not 0 <= dst <= MAX_ADDRESS:
+        raise CodecError("invalid", f"'dst' must be an integer address 0..{MAX_ADDRESS}", tag)
+    data = m.get("data")
+    if not isinstance(data, bytes):
+        raise CodecError("invalid", "'data' must be msgpack bin (bytes)", tag)
+    flow = m.get("flow")
+    if flow is not None and not isinstance(flow, str):
+        raise CodecError("invalid", "'flow' must be a string or nil", tag)
+    return TxRequest(dst, data, tag, flow)
+
+
+# -- rx: modem -> app ---------------------------------------------------------------------------
+def encode_rx(src: int, dst: int, data: bytes, seq: int, t_tx: float, t_rx: float) -> bytes:
+    return pack({"src": src, "dst": dst, "data": data, "seq": seq, "t_tx": float(t_tx), "t_rx": float(t_rx)})
+
+
+@dataclass(frozen=True, slots=True)
+class RxFrame:
+    src: int
+    dst: int
+    data: bytes
+    seq: int
+    t_tx: float
+    t_rx: float
+
+
+def decode_rx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> RxFrame:
+    m = _map(unpack(raw, limit), "an rx message")
+    for k in ("src", "dst", "seq"):
+        if not _is_int(m.get(k)):
+            raise CodecError("invalid", f"{k!r} must be an integer")
+    for k in ("t_tx", "t_rx"):
+        if not _is_num(m.get(k)):
+            raise CodecError("invalid", f"{k!r} must be a number")
+    if not isinstance(m.get("data"), bytes):
+        raise CodecError("invalid", "'data' must be bin")
+    return RxFrame(m["src"], m["dst"], m["data"], m["seq"], float(m["t_tx"]), float(m["t_rx"]))
+
+
+# -- status: modem -> app -----------------------------------------------------------------------
+def encode_status(tag: int | None, event: str, reason: str | None, t: float) -> bytes:
+    return pack({"tag": tag, "event": event, "reason": reason, "t": float(t)})
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    tag: int | None
+    event: str
+    reason: str | None
+    t: float
+
+
+def decode_status(raw: bytes) -> Status:
+    m = _map(unpack(raw, MAX_SMALL_MESSAGE), "a status message")
+    ev = m.get("event")
+    if ev not in STATUS_EVENTS:
+        raise CodecError("invalid", f"'event' must be one of {STATUS_EVENTS}")
+    reason = m.get("reason")
+    if reason is not None and not isinstance(reason, str):
+        raise CodecError("invalid", "'reason' must be a string or nil")
+    if not _is_num(m.get("t")):
+        raise CodecError("invalid", "'t' must be a number")
+    return Status(_tag(m), ev, reason, float(m["t"]))
+
+
+# -- pose samples -------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Pose:
+    p: tuple[float, float, float]
+    t: float | None = None
+    q: tuple[float, float, float, float] | None = None
+    v: tuple[float, float, float] | None = None
+
+
+def encode_pose(p, *, t: float | None = None, q=None, v=None) -> bytes:
+    m: dict[str, Any] = {}
+    if t is not None:
+        m["t"] = float(t)
+    m["p"] = [float(x) for x in p]
+    if q is not None:
+        m["q"] = [float(x) for x in q]
+    if v is not None:
+        m["v"] = [float(x) for x in v]
+    return pack(m)
+
+
+def decode_pose(raw: bytes) -> Pose:
+    m = _map(unpack(raw, MAX_SMALL_MESSAGE), "a pose sample")
+    t = m.get("t")
+    if t is not None and not _is_num(t):
+        raise CodecError("invalid", "'t' must be a finite number or nil")
+    p = _vec(m, "p", 3, True)
+    return Pose(p, None if t is None else float(t), _vec(m, "q", 4, False), _vec(m, "v", 3, False))  # type: ignore[arg-type]
+
+
+# -- control requests ---------------------------------------------------------------------------
+def decode_request(raw: bytes | None) -> dict:
+    """A control request: a msgpack map, or nothing at all (= empty map)."""
+    if raw is None or len(raw) == 0:
+        return {}
+    m = _map(unpack(raw, MAX_SMALL_MESSAGE), "a control request")
+    if not all(isinstance(k, str) for k in m):
+        raise CodecError("invalid", "control request keys must be strings")
+    return m

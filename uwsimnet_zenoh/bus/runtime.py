@@ -1,0 +1,273 @@
+"""`uwsimnet run --clock realtime`: a scene's channels on Zenoh, in wall time, until duration or Ctrl-C.
+
+    session  router listening on --listen (default tcp/127.0.0.1:7447), or a client of --connect
+    network  the scene (restricted to --channels), flows of the scene except --external-flows
+    clock    engine/realtime.RealtimeClock: the engine on its own thread
+    broker   bus/broker.Broker: the modems on their keys, poses, trace, clock, control
+    trace    the same JSONL as a virtual run (meta first), flushed every second and on exit
+
+SIGINT/SIGTERM (or the duration) stop the engine after the event it is running; then the broker
+undeclares, the trace is flushed and closed, and the session is closed: a frame enqueued before the
+signal has its outcome in the trace or is still in flight there (queued or on air).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import faulthandler
+import logging
+import math
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from ..scene.model import Scene
+from .router import StopOnSignal
+from .session import DEFAULT_ENDPOINT, BusError, locators, make_config, open_raw, tune_threads
+
+log = logging.getLogger("uwsimnet.bus.runtime")
+
+
+def _user_error(msg: str) -> Exception:
+    from ..cli import UserError  # noqa: PLC0415 - cli imports us lazily; avoid the cycle at import time
+
+    return UserError(msg)
+
+
+def parse_channels(spec: str | None, scene: Scene) -> set[int] | None:
+    if not spec:
+        return None
+    out: set[int] = set()
+    ids = {c.id for c in scene.channels}
+    for part in spec.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            cid = int(part)
+        except ValueError:
+            raise _user_error(f"--channels: {part!r} is not a channel id") from None
+        if cid not in ids:
+            raise _user_error(f"--channels: the scene has no channel {cid} (it has {sorted(ids)})")
+        out.add(cid)
+    return out or None
+
+
+def select_channels(scene: Scene, channels: set[int] | None) -> tuple[Scene, set[str]]:
+    """The part of `scene` a broker for `channels` hosts, and the dccommsIds it leaves to others.
+
+    Vehicles all stay (their poses are needed for geometry); a device stays if both its channels are
+    served; flows stay if their source does."""
+    if channels is None:
+        return scene, set()
+    foreign: set[str] = set()
+    vehicles = []
+    for v in scene.vehicles:
+        keep = []
+        for d in v.devices:
+            if d.tx_channel in channels and d.rx_channel in channels:
+                keep.append(d)
+            else:
+                foreign.add(d.dccomms_id)
+                if (d.tx_channel in channels) != (d.rx_channel in channels):
+                    log.warning("%s: tx channel %d and rx channel %d are not both served here; left to the"
+                                " broker that serves both", d.dccomms_id, d.tx_channel, d.rx_channel)
+        vehicles.append(v.model_copy(update={"devices": tuple(keep)}))
+    kept = {d.dccomms_id for v in vehicles for d in v.devices}
+    return scene.model_copy(update={
+        "channels": tuple(c for c in scene.channels if c.id in channels),
+        "vehicles": tuple(vehicles),
+        "flows": tuple(f for f in scene.flows if f.src in kept),
+    }), foreign
+
+
+def parse_external(spec: str | None, scene: Scene) -> set[str]:
+    if not spec:
+        return set()
+    names = {f.name for f in scene.flows}
+    if spec.strip() == "all":
+        return names
+    out = {p.strip() for p in spec.split(",") if p.strip()}
+    unknown = out - names
+    if unknown:
+        raise _user_error(f"--external-flows: no flow {', '.join(sorted(unknown))} in the scene"
+                          f" (flows: {', '.join(sorted(names)) or 'none'})")
+    return out
+
+
+def realtime_priority() -> None:
+    """UWSIMNET_RT_PRIORITY=N: run this process (the engine and Zenoh's threads, created later, inherit
+    it) under SCHED_RR priority N, so a loaded machine does not delay deliveries (needs CAP_SYS_NICE)."""
+    prio = os.environ.get("UWSIMNET_RT_PRIORITY")
+    if not prio:
+        return
+    try:
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(int(prio)))
+        log.info("realtime scheduling: SCHED_RR priority %s", prio)
+    except (AttributeError, OSError, ValueError) as e:
+        log.warning("UWSIMNET_RT_PRIORITY=%s ignored: %s", prio, e)
+
+
+def _setup_logging() -> None:
+    root = logging.getLogger("uwsimnet")
+    if not root.handlers:
+        h = logging.StreamHandler(sys.stderr)
+        h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        root.addHandler(h)
+        root.setLevel(logging.INFO)
+
+
+def run_realtime(scene: Scene, args: Any) -> int:
+    """Run `scene` on the realtime clock, serving its modems on Zenoh (see module docstring)."""
+    _setup_logging()
+    duration = args.duration if args.duration is not None else scene.simulation.duration
+    if duration is not None and not duration > 0:
+        raise _user_error("--duration must be > 0")
+    channels = parse_channels(getattr(args, "channels", None), scene)
+    external = parse_external(getattr(args, "external_flows", None), scene)
+    hosted, foreign = select_channels(scene, channels)
+    trace = args.trace or scene.tracing.log_to_file
+    if not trace:                                   # a trace for the summary only, removed afterwards
+        fd, tmp = tempfile.mkstemp(suffix=".jsonl", prefix="uwsimnet-rt-")
+        os.close(fd)
+        try:
+            return _run(scene, args, duration, channels, external, hosted, foreign, tmp, True)
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+    return _run(scene, args, duration, channels, external, hosted, foreign, trace, False)
+
+
+def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | None, external: set[str],
+         hosted: Scene, foreign: set[str], trace: str, tmp: bool) -> int:
+    from ..engine.network import Network
+    from ..engine.realtime import Deferred, RealtimeClock
+    from ..trace.events import CallbackSink, JsonlSink, load_tracing_class
+    from ..traffic.flow import FlowSource
+    from .broker import Broker
+
+    world = scene.world
+    listen = list(args.listen or ())
+    connect = list(args.connect or ())
+    if connect and listen:
+        raise _user_error("give --listen (embedded router) or --connect (existing router), not both")
+    if not connect and not listen:
+        listen = [DEFAULT_ENDPOINT]
+
+    tune_threads()
+    realtime_priority()
+    try:
+        net = Network(hosted, seed=args.seed, duration=duration if duration is not None else math.inf,
+                      flows=False)
+    except ValueError as e:
+        raise _user_error(f"{scene.source}: {e}") from None
+    for f in hosted.flows:
+        if f.name not in external:
+            net.flows.append(FlowSource(f, net.modems[f.src], net.sched, net.seeds("flow", f.name),
+                                        net.duration))
+    clock = RealtimeClock(net.sched, until=duration, spin=float(os.environ.get("UWSIMNET_SPIN") or 0.001))
+    try:
+        conf = (make_config("client", connect=connect, connect_timeout_ms=3000) if connect
+                else make_config("router", listen=listen))
+    except (BusError, ValueError) as e:
+        raise _user_error(str(e)) from None
+
+    summary: dict[str, Any] = {}
+    with StopOnSignal() as stop:
+        try:
+            session = open_raw(conf)
+        except BusError as e:
+            if connect:
+                raise _user_error(f"cannot connect to {', '.join(connect)}: {e}") from None
+            raise _user_error(f"cannot listen on {', '.join(listen)} ({e}); is another uwsimnet or router"
+                              f" running there? use --connect {listen[0]} to join it, or --listen"
+                              " another endpoint") from None
+        broker = None
+        fh = None
+        jsonl = None
+        try:
+            Path(trace).parent.mkdir(parents=True, exist_ok=True)
+            fh = open(trace, "w", encoding="utf-8")  # noqa: SIM115 - closed in finally, after the engine
+            sink = JsonlSink(fh)
+            meta = net.meta()
+            meta.update(clock="realtime", world=world, duration=duration,
+                        channels=sorted(net.channels), external_flows=sorted(external))
+            sink.header(meta)
+            jsonl = Deferred(sink)              # written when the engine is idle, not between event and rx
+            net.tracer.add(jsonl)
+            last_flush = [time.monotonic()]
+
+            def write_trace() -> None:
+                jsonl.flush()
+                if time.monotonic() - last_flush[0] > 1.0:      # on disk every second (tail -f works)
+                    fh.flush()
+                    last_flush[0] = time.monotonic()
+            clock.idle_hooks.append(write_trace)
+            if scene.tracing.class_name:
+                try:
+                    net.tracer.add(CallbackSink(load_tracing_class(scene.tracing.class_name)))
+                except ValueError as e:
+                    raise _user_error(f"{scene.source}:{scene.tracing.line}: {e}") from None
+            try:
+                broker = Broker(session, net, clock, world=world, channels=channels, foreign=foreign)
+                broker.start()
+            except ValueError as e:
+                raise _user_error(f"{scene.source}: {e} (names become Zenoh keys; --world NAME sets the"
+                                  " world)") from None
+
+            if connect:
+                print(f"uwsimnet: connected to {', '.join(connect)}", flush=True)
+            else:
+                print(f"uwsimnet: listening on {', '.join(locators(session) or listen)}", flush=True)
+            chans = ",".join(str(c) for c in sorted(net.channels))
+            print(f"uwsimnet: world {world!r}, channel(s) {chans}, {len(net.modems)} modem(s):"
+                  f" {', '.join(net.modems) or '-'}", flush=True)
+            print(f"uwsimnet: keys {broker.keys.base}/modem/<id>/{{tx,rx,status,info}}, pose/<vehicle>,"
+                  " clock, control/<op>", flush=True)
+            clock.start()
+            until = f"for {duration:g} s" if duration is not None else "until Ctrl-C"
+            print(f"uwsimnet: running {until} (realtime clock); trace {trace if not tmp else '(summary only)'}",
+                  flush=True)
+            while not stop.event.is_set() and not clock.done.is_set():
+                stop.event.wait(0.2)
+            if stop.event.is_set():
+                print(f"uwsimnet: stopping (signal {stop.signum}) at t={clock.now():.3f} s", flush=True)
+        finally:
+            faulthandler.dump_traceback_later(30, exit=True)     # a shutdown that hangs dies loudly
+            clock.stop()
+            if not clock.join(5.0):
+                log.error("the engine thread did not stop within 5 s")
+            summary = {"t": net.sched.now, **clock.stats()}
+            if broker is not None:
+                summary["bus"] = dict(broker.counters)
+                broker.close()
+            if fh is not None:
+                if jsonl is not None:
+                    jsonl.flush()
+                fh.flush()
+                fh.close()
+            session.close()
+            faulthandler.cancel_dump_traceback_later()
+    _summary(trace, summary, net)
+    if not tmp:
+        print(f"trace: {trace}")
+    return 0
+
+
+def _summary(trace: str, s: dict[str, Any], net: Any) -> None:
+    from rich.console import Console
+
+    from ..trace.report import TraceError, flow_metrics, format_report
+
+    console = Console()
+    try:
+        console.print(format_report(flow_metrics(trace)))
+    except TraceError as e:
+        console.print(f"(no report: {e})")
+    bad = {k: v for k, v in (s.get("bus") or {}).items() if k not in ("tx_messages", "poses")}
+    console.print(f"{net.scene.name}: {s['t']:.3f} s realtime, {s['events']} events (late mean"
+                  f" {s['late_mean'] * 1e6:.0f} us, max {s['late_max'] * 1e3:.2f} ms), {s['items']} messages,"
+                  f" {s['errors']} errors" + (f"; refused/ignored: {bad}" if bad else ""))

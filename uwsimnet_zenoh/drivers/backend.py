@@ -1,0 +1,153 @@
+"""The modem backend: what an emulator or a bridge sits on.
+
+An emulator makes a simulated modem look like a real device (EvoLogics AT over TCP, a framed serial
+pty); a bridge lets an application that cannot link Zenoh use a modem (socket, POSIX queues).  Both
+need the same thing underneath: a modem they can `send(dst, data, tag)` to, that reports what became
+of each frame and hands up what it received.  That is `ModemBackend`.  Two implementations:
+
+* `sim_backend.SimBackend`: a modem of an in-process `Network` (this part; used by the tests and by
+  `uwsimnet emulate` when the emulator runs the scene itself);
+* a Zenoh backend (part B): `modem/<id>/tx` out, `modem/<id>/rx` and `/status` in, `trace/<ch>` for
+  delivery outcomes (`DeliveryTracker`).
+
+Callbacks run on the backend's thread (the engine thread, a Zenoh thread): they must not block.
+
+`BackendStatus.event` is the simulator's vocabulary (queued, sent, dropped, acked, failed) plus two
+outcomes seen at the addressee, which a device would learn from its link-layer acknowledgement:
+`delivered` (the frame reached the addressee's application) and `lost` (it did not: reason prop, col,
+mult, range, nopose).  Emulators turn those into DELIVEREDIM / FAILEDIM after the time an
+acknowledgement would take to come back.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+
+@dataclass(frozen=True)
+class BackendFrame:
+    """A frame the modem received.  Times are simulation seconds.  `size` is bytes on air, `distance`
+    (m), `prop_time` (s) and `velocity` (m/s, positive = moving apart) the link at transmission time,
+    when the backend knows them.  `hint` is what the sender's emulator said about the frame (e.g.
+    `im:ack`, `burst`), when it was sent through an emulator of the same process."""
+
+    src: int
+    dst: int
+    data: bytes
+    seq: int = -1
+    t_tx: float | None = None
+    t_rx: float | None = None
+    size: int | None = None
+    bitrate: float | None = None
+    distance: float | None = None
+    prop_time: float | None = None
+    velocity: float | None = None
+    hint: str | None = None
+
+
+@dataclass(frozen=True)
+class BackendStatus:
+    tag: Any
+    event: str                    # queued | sent | dropped | acked | failed | delivered | lost
+    reason: str | None
+    t: float
+    seq: int = -1
+    prop_time: float | None = None
+    """delivered/lost: the one-way propagation time to the addressee, s (None if unknown)."""
+
+
+FrameCallback = Callable[[BackendFrame], None]
+StatusCallback = Callable[[BackendStatus], None]
+
+
+class ModemBackend(Protocol):
+    id: str
+    address: int
+    on_frame: list[FrameCallback]
+    on_status: list[StatusCallback]
+
+    def send(self, dst: int, data: bytes, tag: Any = None, hint: str | None = None) -> None:
+        """Hand a frame to the modem (thread-safe, never blocks).  Its fate comes through on_status."""
+
+    def now(self) -> float:
+        """Current simulation time, s."""
+
+    def info(self) -> dict[str, Any]: ...
+
+    def close(self) -> None: ...
+
+
+class DeliveryTracker:
+    """Learns from trace records (docs/trace-format.md) whether unicast frames reached their addressee.
+
+    `watch(src_address, seq, sender_dev, fn)` then feed every trace record to `on_trace`; `fn(event,
+    reason, t, dist)` is called once with `delivered` (an `rx` record at another device) or `lost` (a
+    `drop` record at another device).  Drops at the sender (fifo, retry, ...) are not outcomes here:
+    the sender's own status says those.  At most `limit` frames are watched (oldest forgotten)."""
+
+    def __init__(self, limit: int = 10000) -> None:
+        self.limit = limit
+        self._watch: OrderedDict[tuple[int, int], tuple[str, Callable[..., None]]] = OrderedDict()
+
+    def watch(self, src: int, seq: int, sender_dev: str, fn: Callable[[str, str | None, float, float | None],
+                                                                      None]) -> None:
+        self._watch[(src, seq)] = (sender_dev, fn)
+        while len(self._watch) > self.limit:
+            self._watch.popitem(last=False)
+
+    def forget(self, src: int, seq: int) -> None:
+        self._watch.pop((src, seq), None)
+
+    def on_trace(self, rec: dict[str, Any]) -> None:
+        ev = rec.get("ev")
+        if ev not in ("rx", "drop") or rec.get("kind", "data") != "data":
+            return
+        key = (rec.get("src"), rec.get("seq"))
+        hit = self._watch.get(key)  # type: ignore[arg-type]
+        if hit is None or rec.get("dev") == hit[0]:
+            return
+        del self._watch[key]  # type: ignore[arg-type]
+        hit[1]("delivered" if ev == "rx" else "lost", rec.get("reason"), float(rec.get("t", 0.0)), rec.get("dist"))
+
+
+# -- what a device would measure ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class LinkMetrics:
+    """What a modem reports about a reception, derived from a simulated frame (emulators)."""
+
+    rssi: int                 # dB (EvoLogics reports negative values, about -20 close to -110 far)
+    integrity: int            # 0..255, > 100 decodes well
+    prop_time: float          # s
+    duration: float           # s, the frame's time on air
+    velocity: float           # m/s
+    bitrate: int              # bps
+    distance: float           # m
+
+
+def link_metrics(f: BackendFrame, bitrate: float | None = None, sound_speed: float = 1500.0) -> LinkMetrics:
+    """Plausible device figures for a received frame.
+
+    Propagation time and distance come from the backend when it knows them, else from t_rx - t_tx
+    minus the time on air; RSSI follows spherical spreading plus ~4 dB/km absorption below a source
+    level giving -30 dB at 1 m; integrity falls slowly with distance.  These are a device's *kind* of
+    numbers, not a model of any receiver; applications that only threshold on them behave sensibly."""
+    br = f.bitrate or bitrate or 1000.0
+    size = f.size if f.size is not None else len(f.data)
+    duration = size * 8.0 / br
+    prop = f.prop_time
+    if prop is None and f.distance is not None:
+        prop = f.distance / sound_speed
+    if prop is None and f.t_tx is not None and f.t_rx is not None:
+        prop = max(0.0, f.t_rx - f.t_tx - duration)
+    prop = prop or 0.0
+    dist = f.distance if f.distance is not None else prop * sound_speed
+    rssi = -30.0 - 20.0 * math.log10(max(dist, 1.0)) - 0.004 * dist
+    integrity = 240.0 - dist / 25.0
+    return LinkMetrics(rssi=int(round(max(-120.0, min(-20.0, rssi)))),
+                       integrity=int(round(max(101.0, min(255.0, integrity)))),
+                       prop_time=prop, duration=duration, velocity=f.velocity or 0.0, bitrate=int(round(br)),
+                       distance=dist)

@@ -1,0 +1,198 @@
+"""Modem backends on an in-process simulation: a `Network` run by the realtime clock (or stepped).
+
+    world = SimWorld(load_scene("scenes/examples/two-nodes.xml"))     # realtime, starts at t = 0
+    a, b = world.backend("alpha-modem"), world.backend("bravo-modem")
+    b.on_frame.append(print)
+    world.start()
+    a.send(2, b"hello", tag=1)
+    ...
+    world.close()
+
+With `clock="virtual"` nothing runs by itself: the caller steps time with `world.run(until)` and calls
+`send` from that same thread (deterministic tests).  With the realtime clock every call into the
+network goes through the clock's inbox and every callback runs on the engine thread.
+
+Each received frame is decorated with what a device would measure: the distance between the two
+vehicles when the frame left (from the pose table), the channel's propagation time for it, the
+relative radial velocity, the sender's bitrate.  Unicast frames sent through a backend are followed
+to their addressee through the trace (`DeliveryTracker`): the sender's backend then reports
+`delivered` or `lost`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+from ..engine.network import Network
+from ..engine.realtime import RealtimeClock
+from ..phy.frame import BROADCAST, Frame
+from ..phy.modem import Modem
+from ..scene.model import Scene
+from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback
+
+log = logging.getLogger("uwsimnet.drivers.sim")
+
+
+class SimWorld:
+    def __init__(self, scene: Scene, *, clock: str = "realtime", seed: int | None = None, flows: bool = False,
+                 speed: float = 1.0) -> None:
+        if clock not in ("realtime", "virtual"):
+            raise ValueError(f"clock must be realtime or virtual, got {clock!r}")
+        self.net = Network(scene, seed=seed, flows=flows)
+        self.mode = clock
+        self.clock: RealtimeClock | None = (RealtimeClock(self.net.sched, speed=speed, spin=0.0)
+                                            if clock == "realtime" else None)
+        self.tracker = DeliveryTracker()
+        self.net.tracer.add(self.tracker.on_trace)
+        self.backends: dict[str, SimBackend] = {}
+        self.hints: dict[tuple[int, int], str] = {}
+        self._started = False
+
+    # -- lifecycle ----------------------------------------------------------------------------------
+    def backend(self, dccomms_id: str) -> SimBackend:
+        if dccomms_id not in self.net.modems:
+            raise KeyError(f"no device {dccomms_id!r} in the scene (have {sorted(self.net.modems)})")
+        be = self.backends.get(dccomms_id)
+        if be is None:
+            be = self.backends[dccomms_id] = SimBackend(self, self.net.modems[dccomms_id])
+        return be
+
+    def start(self) -> None:
+        if self.clock is not None and not self._started:
+            self.clock.start()
+        self._started = True
+
+    def close(self) -> None:
+        if self.clock is not None and self._started:
+            self.clock.stop()
+            self.clock.join(5.0)
+        self._started = False
+
+    def __enter__(self) -> SimWorld:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- time and threads ---------------------------------------------------------------------------
+    def now(self) -> float:
+        return self.clock.now() if self.clock is not None else self.net.sched.now
+
+    def call(self, fn: Any, *args: Any) -> None:
+        """Run fn(*args) where the network lives (the engine thread, or right here if virtual)."""
+        if self.clock is not None:
+            self.clock.call_soon(fn, *args)
+        else:
+            fn(*args)
+
+    def run(self, until: float) -> None:
+        """Virtual clock only: run every event up to simulation time `until`."""
+        if self.clock is not None:
+            raise RuntimeError("run() is for the virtual clock; the realtime clock runs by itself")
+        self.net.run(until)
+
+    # -- link figures for a received frame --------------------------------------------------------
+    def link(self, sender_dev: str, receiver: Modem, t: float) -> tuple[float | None, float | None, float | None]:
+        """Distance (m), propagation time (s) and radial velocity (m/s) between two modems at time t."""
+        sender = self.net.modems.get(sender_dev)
+        if sender is None:
+            return None, None, None
+        poses = self.net.poses
+        i, j = sender.vehicle_index, receiver.vehicle_index
+
+        def dist(at: float) -> float:
+            p = poses.positions(max(0.0, at))
+            return float(math.dist(tuple(p[i]), tuple(p[j])))
+
+        d = dist(t)
+        v = (dist(t + 0.5) - dist(t - 0.5)) if poses.moving else 0.0
+        ch = receiver.rx_channel
+        return d, ch.min_prop_s + ch.prop_s_per_m * d, v
+
+
+class SimBackend:
+    """One simulated modem as a `ModemBackend` (see drivers/backend.py)."""
+
+    def __init__(self, world: SimWorld, modem: Modem) -> None:
+        self.world = world
+        self.modem = modem
+        self.id = modem.id
+        self.address = modem.address
+        self.on_frame: list[FrameCallback] = []
+        self.on_status: list[StatusCallback] = []
+        self.counters = {"sent": 0, "received": 0}
+        self._refused = False
+        modem.on_receive.append(self._on_rx)
+        modem.on_status.append(self._on_status)
+
+    def now(self) -> float:
+        return self.world.now()
+
+    def send(self, dst: int, data: bytes, tag: Any = None, hint: str | None = None) -> None:
+        self.world.call(self._send, int(dst), bytes(data), tag, hint)
+
+    def info(self) -> dict[str, Any]:
+        m = self.modem
+        return {"id": m.id, "kind": "sim", "address": m.address, "vehicle": m.vehicle, "bitrate": m.bitrate,
+                "tx_channel": m.tx_channel.id, "rx_channel": m.rx_channel.id, "fifo_bytes": m.fifo_bytes,
+                "max_frame_bytes": m.cfg.max_frame_bytes, "counters": dict(m.counters)}
+
+    def close(self) -> None:
+        m = self.modem
+        for lst, fn in ((m.on_receive, self._on_rx), (m.on_status, self._on_status)):
+            if fn in lst:
+                lst.remove(fn)
+
+    # -- engine thread ------------------------------------------------------------------------------
+    def _send(self, dst: int, data: bytes, tag: Any, hint: str | None) -> None:
+        m = self.modem
+        self.counters["sent"] += 1
+        self._refused = False
+        frame = m.send(dst, len(data), data=data, tag=tag)
+        if hint is not None:
+            hints = self.world.hints
+            hints[(m.address, frame.seq)] = hint
+            while len(hints) > 10000:
+                del hints[next(iter(hints))]
+        if dst != BROADCAST and not self._refused:        # a frame refused at once has no outcome to wait for
+            self.world.tracker.watch(m.address, frame.seq, m.id,
+                                     lambda ev, reason, t, dist, f=frame: self._outcome(f, ev, reason, t, dist))
+
+    def _outcome(self, frame: Frame, event: str, reason: str | None, t: float, dist: float | None) -> None:
+        prop = None
+        if dist is not None:
+            ch = self.modem.tx_channel
+            prop = ch.min_prop_s + ch.prop_s_per_m * float(dist)
+        self._emit_status(BackendStatus(frame.tag, event, reason, t, frame.seq, prop))
+
+    def _on_status(self, modem: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
+        if frame.kind != "data":
+            return
+        if event == "dropped":
+            self._refused = True
+            self.world.tracker.forget(frame.src, frame.seq)
+        self._emit_status(BackendStatus(frame.tag, event, reason, t, frame.seq))
+
+    def _emit_status(self, st: BackendStatus) -> None:
+        for cb in list(self.on_status):
+            try:
+                cb(st)
+            except Exception:  # noqa: BLE001 - a listener must not break the engine
+                log.exception("%s: status listener raised", self.id)
+
+    def _on_rx(self, modem: Modem, frame: Frame, t: float) -> None:
+        self.counters["received"] += 1
+        dist, prop, vel = self.world.link(frame.dev, modem, frame.t_tx)
+        sender = self.world.net.modems.get(frame.dev)
+        data = frame.data if frame.data is not None else bytes(frame.payload)
+        bf = BackendFrame(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, frame.size,
+                          sender.bitrate if sender is not None else None, dist, prop, vel,
+                          self.world.hints.get((frame.src, frame.seq)))
+        for cb in list(self.on_frame):
+            try:
+                cb(bf)
+            except Exception:  # noqa: BLE001
+                log.exception("%s: frame listener raised", self.id)

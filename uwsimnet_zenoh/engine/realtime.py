@@ -1,0 +1,305 @@
+"""The realtime clock: drives a `Scheduler` against the wall clock, on its own thread.
+
+Simulation time is wall time since `start()` (times an optional speed factor), frozen while paused.
+The engine thread is the only thread that touches the simulation: everything from outside (a frame an
+application sent, a pose sample, a control command) comes in through `call_soon(fn, *args)`, a
+thread-safe inbox that never blocks the caller beyond a lock.  Each item is stamped with the simulation
+time at which it was handed over and runs at that time (never before an event that is already due,
+never in the past of the scheduler).
+
+Waiting for the next event is `Condition.wait` until shortly before its time, then a short busy spin:
+the OS wakes a thread late by 50-100 us, a spin does not (measured in docs/benchmarks.md).  An event
+runs with `sched.now` equal to its *modelled* time, so the trace and the frames carry modelled times;
+how late the wall clock is when it runs is recorded in `stats()`.
+
+No I/O, no Zenoh: the bus layer (uwsimnet_zenoh.bus) feeds the inbox and publishes from callbacks that
+run here.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any
+
+from .scheduler import Scheduler
+
+log = logging.getLogger("uwsimnet.engine.realtime")
+
+_Item = tuple[float, Callable[..., Any], tuple]
+sched_yield = getattr(os, "sched_yield", lambda: None)
+IDLE_SLACK = 0.002
+"""Idle hooks run only when the next event is at least this far (wall s): they never make one late."""
+
+
+class RealtimeClock:
+    """Runs `sched` in wall time on a thread of its own.
+
+    `speed`: simulated seconds per wall second (1.0 = real time).  `spin`: wall seconds of busy wait
+    before each event (0 disables it).  `until`: simulation time at which the clock stops by itself
+    (`done` is set then); None runs until `stop()`.  `on_error(exc)` is called when an event or an inbox
+    item raises; the clock logs it and keeps running either way.
+    """
+
+    def __init__(self, sched: Scheduler, *, speed: float = 1.0, spin: float = 0.001,
+                 until: float | None = None, on_error: Callable[[BaseException], None] | None = None,
+                 perf_counter: Callable[[], float] = time.perf_counter, yield_cpu: bool = True) -> None:
+        if not speed > 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        self.sched = sched
+        self.speed = float(speed)
+        self.spin = max(0.0, float(spin))
+        self.until = until
+        self.on_error = on_error
+        self._pc = perf_counter
+        self.yield_cpu = yield_cpu and hasattr(os, "sched_yield")
+        self._cond = threading.Condition(threading.Lock())
+        self._inbox: deque[_Item] = deque()
+        self._thread: threading.Thread | None = None
+        self._stopping = False
+        self._paused = False
+        self._t0 = 0.0               # perf_counter value at which simulation time was 0 (shifted by pauses)
+        self._frozen = 0.0           # simulation time while paused / before start
+        self._started = False
+        self.done = threading.Event()
+        """Set when the engine thread has ended (`until` reached, `stop()`, or a fatal error)."""
+        self.idle_hooks: list[Callable[[], None]] = []
+        """Called on the engine thread when it is about to wait and the next event is more than
+        IDLE_SLACK away: deferred work (writing trace records) goes here, out of the path between an
+        event and its effect.  A hook must be short and must bound its own backlog."""
+        self.errors = 0
+        self._late_n = 0
+        self._late_sum = 0.0
+        self._late_max = 0.0
+        self._items = 0
+
+    # -- time ------------------------------------------------------------------------------------
+    def now(self) -> float:
+        """Current simulation time derived from the wall clock (thread-safe)."""
+        if self._paused or not self._started:
+            return self._frozen
+        return (self._pc() - self._t0) * self.speed
+
+    def wall_epoch(self) -> float:
+        """Unix time (time.time()) at which simulation time 0 was, at the current speed; a pause moves it."""
+        return time.time() - self.now() / self.speed
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # -- control (any thread) --------------------------------------------------------------------
+    def start(self) -> None:
+        """Start the engine thread; simulation time continues from `sched.now`."""
+        if self._thread is not None:
+            raise RuntimeError("the realtime clock is already started")
+        with self._cond:
+            self._t0 = self._pc() - self.sched.now / self.speed
+            self._frozen = self.sched.now
+            self._started = True
+        self._thread = threading.Thread(target=self._loop, name="uwsimnet-engine", daemon=True)
+        self._thread.start()
+
+    def call_soon(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run `fn(*args)` on the engine thread, at the simulation time of this call (thread-safe)."""
+        item = (self.now(), fn, args)
+        with self._cond:
+            self._inbox.append(item)
+            self._cond.notify()
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
+        """Like `call_soon`, returning a Future with the result (for callers that must wait for it)."""
+        fut: Future = Future()
+
+        def run() -> None:
+            if not fut.set_running_or_notify_cancel():
+                return
+            try:
+                fut.set_result(fn(*args))
+            except BaseException as e:  # noqa: BLE001 - handed to the waiting caller
+                fut.set_exception(e)
+        self.call_soon(run)
+        return fut
+
+    def pause(self) -> None:
+        """Freeze simulation time: due events wait; inbox items still run, at the frozen time."""
+        with self._cond:
+            if not self._paused:
+                self._frozen = self.now()
+                self._paused = True
+                self._cond.notify()
+
+    def resume(self) -> None:
+        with self._cond:
+            if self._paused:
+                self._t0 = self._pc() - self._frozen / self.speed
+                self._paused = False
+                self._cond.notify()
+
+    def stop(self) -> None:
+        """Ask the engine thread to end after the item or event it is running (see `join`)."""
+        with self._cond:
+            self._stopping = True
+            self._cond.notify()
+
+    def join(self, timeout: float | None = None) -> bool:
+        """Wait for the engine thread; True if it has ended."""
+        if self._thread is None:
+            return True
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    def stats(self) -> dict[str, float]:
+        """Events run, inbox items run, errors, and how late (wall) events ran: mean and max in seconds."""
+        n = self._late_n
+        return {"events": n, "items": self._items, "errors": self.errors,
+                "late_mean": self._late_sum / n if n else 0.0, "late_max": self._late_max}
+
+    # -- the engine thread -----------------------------------------------------------------------
+    def _fail(self, what: str, e: BaseException) -> None:
+        self.errors += 1
+        log.error("%s raised %s: %s", what, type(e).__name__, e, exc_info=e)
+        if self.on_error is not None:
+            try:
+                self.on_error(e)
+            except Exception:  # noqa: BLE001 - an error handler must not stop the clock
+                log.exception("on_error raised")
+
+    def _run_until(self, t: float) -> None:
+        """Run every event due at or before simulation time t (each at its modelled time)."""
+        sched = self.sched
+        pc = self._pc
+        while True:
+            nt = sched.next_time()
+            if nt is None or nt > t or self._stopping:
+                return
+            if not self._paused:
+                late = (pc() - self._t0) * self.speed - nt
+                if late > 0:
+                    self._late_sum += late
+                    if late > self._late_max:
+                        self._late_max = late
+            self._late_n += 1
+            try:
+                sched.step()
+            except Exception as e:  # noqa: BLE001 - the engine keeps running
+                self._fail(f"event at t={nt:.6f}", e)
+
+    def _loop(self) -> None:
+        sched = self.sched
+        cond = self._cond
+        inbox = self._inbox
+        pc = self._pc
+        yield_cpu = self.yield_cpu
+        try:
+            while not self._stopping:
+                # 1. what came in, each at its stamp, after every event due by then - and by now: when a
+                #    burst of items takes a while, events keep their wall time and the items behind
+                #    them run a little later (as if they had arrived later), never the other way round
+                if inbox:
+                    with cond:
+                        items = list(inbox)
+                        inbox.clear()
+                    for stamp, fn, args in items:
+                        if self._stopping:
+                            break
+                        if self.until is not None and stamp > self.until:
+                            stamp = self.until
+                        due = self.now()
+                        if self.until is not None and due > self.until:
+                            due = self.until
+                        self._run_until(due if due > stamp else stamp)
+                        if stamp > sched.now:
+                            sched.now = stamp
+                        self._items += 1
+                        try:
+                            fn(*args)
+                        except Exception as e:  # noqa: BLE001 - a bad message never stops the engine
+                            self._fail(f"{getattr(fn, '__qualname__', fn)}", e)
+                # 2. events due now
+                now = self.now()
+                until = self.until
+                if until is not None and now >= until:
+                    self._run_until(until)
+                    if sched.now < until:
+                        sched.now = until
+                    return
+                self._run_until(now)
+                # 3. idle work if the next event leaves time for it, then wait for the next event, an
+                #    inbox item, a pause change or stop
+                nxt = sched.next_time()
+                if until is not None and (nxt is None or nxt > until):
+                    nxt = until
+                if self.idle_hooks and not inbox and (nxt is None or (nxt - self.now()) / self.speed > IDLE_SLACK):
+                    for hook in self.idle_hooks:
+                        try:
+                            hook()
+                        except Exception as e:  # noqa: BLE001 - the engine keeps running
+                            self._fail(f"idle hook {getattr(hook, '__qualname__', hook)}", e)
+                with cond:
+                    if inbox or self._stopping:
+                        continue
+                    if self._paused:
+                        cond.wait()
+                        continue
+                    if nxt is None:
+                        cond.wait()
+                        continue
+                    target = self._t0 + nxt / self.speed        # wall (perf_counter) deadline
+                    wait = target - pc() - self.spin
+                    if wait > 0:
+                        cond.wait(wait)
+                        if inbox or self._stopping or self._paused:
+                            continue
+                # 4. spin the last stretch (an arriving item or stop cuts it short); sched_yield lets the
+                #    threads that carry our output (Zenoh's) and input run on this core meanwhile
+                while pc() < target and not inbox and not self._stopping:
+                    if yield_cpu:
+                        sched_yield()
+        finally:
+            self.done.set()
+
+
+def run_for(clock: RealtimeClock, seconds: float) -> None:
+    """Start `clock` and block the caller for `seconds` of wall time, then stop it (tests, scripts)."""
+    clock.start()
+    try:
+        clock.done.wait(seconds)
+    finally:
+        clock.stop()
+        clock.join(5.0)
+
+
+class Deferred:
+    """A trace sink that keeps records and hands them on to `sink` when `flush()` is called (from an
+    idle hook), or at once when `limit` have piled up: trace output stays out of the latency path."""
+
+    __slots__ = ("sink", "limit", "_buf")
+
+    def __init__(self, sink: Callable[[dict], None], limit: int = 2000) -> None:
+        self.sink = sink
+        self.limit = limit
+        self._buf: list[dict] = []
+
+    def __call__(self, rec: dict) -> None:
+        self._buf.append(rec)
+        if len(self._buf) >= self.limit:
+            self.flush()
+
+    def flush(self) -> None:
+        buf, self._buf = self._buf, []
+        sink = self.sink
+        for rec in buf:
+            sink(rec)
+
+    def __len__(self) -> int:
+        return len(self._buf)
