@@ -117,22 +117,27 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def show_metrics(metrics) -> None:
+    """The per-flow table: rich on a terminal, plain aligned text when piped (rich would squeeze it)."""
+    from .trace.report import format_report, format_text
+
+    if sys.stdout.isatty():
+        from rich.console import Console
+
+        Console().print(format_report(metrics))
+    else:
+        print(format_text(metrics))
+
+
 def _summary(trace: str, net) -> None:
-    from rich.console import Console
+    from .trace.report import flow_metrics
 
-    from .trace.report import flow_metrics, format_report
-
-    console = Console()
-    metrics = flow_metrics(trace)
-    console.print(format_report(metrics))
-    ev = net.sched.events_run
-    console.print(f"{net.scene.name}: {net.duration:g} s simulated, seed {net.seed}, {ev} events")
+    show_metrics(flow_metrics(trace))
+    print(f"{net.scene.name}: {net.duration:g} s simulated, seed {net.seed}, {net.sched.events_run} events")
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
-    from .trace.report import TraceError, flow_metrics, format_report, report_json
+    from .trace.report import TraceError, flow_metrics, report_json
 
     if not Path(args.trace).is_file():
         raise UserError(f"{args.trace}: no such trace file")
@@ -143,7 +148,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report_json(metrics), indent=2))
     else:
-        Console().print(format_report(metrics))
+        show_metrics(metrics)
     return 0
 
 

@@ -260,11 +260,12 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
 def _summary(trace: str, s: dict[str, Any], net: Any) -> None:
     from rich.console import Console
 
-    from ..trace.report import TraceError, flow_metrics, format_report
+    from ..cli import show_metrics
+    from ..trace.report import TraceError, flow_metrics
 
     console = Console()
     try:
-        console.print(format_report(flow_metrics(trace)))
+        show_metrics(flow_metrics(trace))
     except TraceError as e:
         console.print(f"(no report: {e})")
     bad = {k: v for k, v in (s.get("bus") or {}).items() if k not in ("tx_messages", "poses")}
