@@ -19,7 +19,7 @@ from uwsimnet_zenoh.bridges.mq_bridge import GliQueueClient, MqBridge
 from uwsimnet_zenoh.drivers import dccomms_framing as dl
 from uwsimnet_zenoh.drivers.sim_backend import SimWorld
 
-WAIT = 5.0
+WAIT = 15.0  # an upper bound only: until() returns as soon as the condition holds
 C_SOURCE = Path(__file__).resolve().parent.parent / "gli_clients" / "c" / "gli_socket_client.c"
 _names = itertools.count()
 

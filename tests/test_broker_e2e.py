@@ -321,7 +321,7 @@ def test_malformed_messages_leave_the_broker_serving(shared, procs):
     assert app.call(cmd="control", op="explode")[0]["ok"] is False
 
     # every tx message was answered: dropped, with a reason
-    deadline = time.monotonic() + 5
+    deadline = time.monotonic() + 20   # exits as soon as every status is in
     while True:
         sts = app.call(cmd="statuses", id="delta-m")
         reasons = [s["reason"] for s in sts if s["event"] == "dropped"]
@@ -371,7 +371,10 @@ def test_info_driver_kind_and_hil_swap(shared, procs):
     driver.call(cmd="untoken", key=real_key)
     k = app.call(cmd="kind", id="echo-m", want="sim")
     # (None in between, for a moment: the real token went before the sim token came back)
-    assert k["kind"] == "sim" and k["changes"][0] == "sim" and "real" in k["changes"]
+    # (the initial "sim" was asserted above; whether its history callback landed before this test's
+    # first query is a race under load, so the sequence is checked from "real" on)
+    assert k["kind"] == "sim" and "real" in k["changes"]
+    assert k["changes"].index("real") < len(k["changes"]) - 1
     assert k["changes"][-1] == "sim"
     assert app.call(cmd="info", id="echo-m")["kind"] == "sim"
 
@@ -518,5 +521,25 @@ def test_select_channels_and_external_flows():
     assert [v.name for v in part.vehicles] == ["a", "b"] and [f.name for f in part.flows] == ["f"]
     assert select_channels(sc, {0})[0].flows == ()
     assert parse_external("all", sc) == {"f"} and parse_external(None, sc) == set()
+    cross = load_scene_text(scene_xml(channels=(0, 1, 2), vehicles=vehicle_xml(
+        "a", (0, 0, 0), device_xml("a-m0", 1, 0).replace("<rxChannelId>0<", "<rxChannelId>1<"))))
+    with pytest.raises(Exception, match=r"^--channels 0: device a-m0 transmits on channel 0 and receives on"
+                       r" channel 1; one broker must serve both \(e.g. --channels 0,1\)$"):
+        select_channels(cross, {0})
+    assert [d.dccomms_id for v in select_channels(cross, {0, 1})[0].vehicles for d in v.devices] == ["a-m0"]
+    assert select_channels(cross, {2})[1] == {"a-m0"}
     with pytest.raises(Exception, match="no flow"):
         parse_external("nope", sc)
+
+
+def test_run_refuses_a_device_split_between_brokers(tmp_path, capsys):
+    """A device whose tx and rx channels would live in different brokers: one line, exit 2, no Zenoh."""
+    from uwsimnet_zenoh.cli import main
+
+    scene = tmp_path / "cross.xml"
+    scene.write_text(scene_xml(channels=(0, 1), vehicles=vehicle_xml(
+        "a", (0, 0, 0), device_xml("a-m", 1, 1).replace("<txChannelId>1<", "<txChannelId>0<"))))
+    assert main(["run", str(scene), "--clock", "realtime", "--channels", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["--channels 1: device a-m transmits on channel 0 and receives on channel 1; one broker must"
+                   " serve both (e.g. --channels 0,1)"]

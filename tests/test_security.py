@@ -130,9 +130,8 @@ class Deployment:
 
     def start(self) -> None:
         hb, hr = self.out / "hb" / "router.json5", self.out / "hr" / "router.json5"
-        # `uwsimnet router` listens where --listen says (its default otherwise): repeat the file's endpoint
-        self.routers.append(Router([sys.executable, "-m", "uwsimnet_zenoh.cli", "router", "--config", str(hb),
-                                    "--listen", f"tls/127.0.0.1:{self.ports['hb']}"],
+        # `uwsimnet router --config` listens on the file's endpoints (TLS only here): no --listen needed
+        self.routers.append(Router([sys.executable, "-m", "uwsimnet_zenoh.cli", "router", "--config", str(hb)],
                                    self.root / "hb.log", "listening on"))
         self.routers.append(Router([sys.executable, "-c", LAUNCHER, str(hr)], self.root / "hr.log", "ready"))
 
@@ -411,3 +410,61 @@ def test_authenticated_user_with_someone_elses_certificate_gets_nothing(dep: Dep
         time.sleep(GRACE)
         assert not inbox.seen(lambda i: i[2] == "mixed" or i[0] == "mixed-trace"), inbox.items
         del subs
+
+
+SCENE = """<?xml version="1.0"?>
+<UWSimScene>
+  <simulation><seed>1</seed><clock>realtime</clock><world>w</world></simulation>
+  <CustomCommsChannel><id>0</id><propTimeIncPerMeter>0.6667</propTimeIncPerMeter></CustomCommsChannel>
+  <vehicle><name>vx</name><position>0 0 0</position><CustomCommsDevice><dccommsId>x</dccommsId><mac>1</mac>
+    <txChannelId>0</txChannelId><rxChannelId>0</rxChannelId><bitrate>10000</bitrate></CustomCommsDevice></vehicle>
+  <vehicle><name>vy</name><position>100 0 0</position><CustomCommsDevice><dccommsId>y</dccommsId><mac>2</mac>
+    <txChannelId>0</txChannelId><rxChannelId>0</rxChannelId><bitrate>10000</bitrate></CustomCommsDevice></vehicle>
+</UWSimScene>
+"""
+
+
+def test_run_and_gli_log_in_with_client_configs(dep: Deployment, tmp_path: Path) -> None:
+    """`uwsimnet run` as the broker identity (ZENOH_CONFIG, no --connect: the file's endpoint) on hb;
+    `gli --zenoh-config` as the app identity on hr: a frame crosses TLS, usrpwd and both ACLs."""
+    scene = tmp_path / "w.xml"
+    scene.write_text(SCENE)
+    brk = dep.out / "hb" / "clients" / "brk.json5"
+    app = str(dep.out / "hr" / "clients" / "app.json5")
+    env = {**os.environ, "ZENOH_CONFIG": str(brk), "PYTHONUNBUFFERED": "1", "RUST_LOG": "error"}
+    run = subprocess.Popen([sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(scene), "--duration", "60",
+                            "--trace", str(tmp_path / "t.jsonl")], cwd=ROOT, env=env, text=True,
+                           stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    out: list[str] = []
+    threading.Thread(target=lambda: out.extend(run.stdout or ()), daemon=True).start()
+    gli = [sys.executable, "-m", "uwsimnet_gli.cli", "--zenoh-config", app, "-w", "w"]
+    genv = {k: v for k, v in os.environ.items() if k != "ZENOH_CONFIG"}
+    try:
+        deadline = time.monotonic() + WAIT
+        while not any("uwsimnet: running" in line for line in out):
+            assert run.poll() is None and time.monotonic() < deadline, "".join(out)
+            time.sleep(0.05)
+        assert any("connected to tls/127.0.0.1" in line for line in out), "".join(out)
+        listen = subprocess.Popen([*gli, "listen", "y", "--count", "1", "--timeout", str(WAIT), "--json"],
+                                  cwd=ROOT, env=genv, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            time.sleep(1.0)                                         # the subscription reaches the broker
+            send = subprocess.run([*gli, "send", "x", "2", "hello", "--wait"], cwd=ROOT, env=genv,
+                                  capture_output=True, text=True, timeout=WAIT + 10)
+            assert send.returncode == 0, send.stdout + send.stderr
+            lo, le = listen.communicate(timeout=WAIT + 5)
+        finally:
+            if listen.poll() is None:
+                listen.kill()
+                listen.wait(5)
+        frames = [json.loads(line) for line in lo.splitlines() if line.startswith("{")]
+        assert len(frames) == 1 and bytes.fromhex(frames[0]["data_hex"]) == b"hello", lo + le
+    finally:
+        if run.poll() is None:
+            run.terminate()
+        try:
+            run.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            run.kill()
+            run.wait(5)
+        (tmp_path / "run.log").write_text("".join(out))

@@ -180,13 +180,17 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--world", help="Zenoh world name (default: the scene's name)")
     r.add_argument("--listen", action="append", help="Zenoh endpoint to listen on (realtime)")
     r.add_argument("--connect", action="append", help="Zenoh router to connect to instead (realtime)")
+    r.add_argument("--zenoh-config", metavar="FILE",
+                   help="Zenoh JSON5 client/router configuration (TLS, user/password; default $ZENOH_CONFIG);"
+                        " --listen/--connect apply on top (realtime)")
     r.add_argument("--channels", help="comma-separated channel ids this broker serves (realtime)")
     r.add_argument("--external-flows", metavar="NAMES",
                    help="flows (comma-separated, or 'all') run by external apps, not by the simulator (realtime)")
     r.set_defaults(fn=cmd_run)
 
     ro = sub.add_parser("router", help="a standalone Zenoh router for this machine (other machines connect)")
-    ro.add_argument("--listen", action="append", help="endpoint to listen on (default tcp/[::]:7447)")
+    ro.add_argument("--listen", action="append",
+                    help="endpoint to listen on (default: the --config file's, else tcp/[::]:7447)")
     ro.add_argument("--connect", action="append", help="another router to connect to (other machines)")
     ro.add_argument("--config", help="Zenoh JSON5 configuration file (TLS, access control, ...)")
     ro.set_defaults(fn=cmd_router)
@@ -205,6 +209,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("-o", "--out", default="figures")
     pl.set_defaults(fn=cmd_plot)
 
+    from .drivers.commands import add_commands  # noqa: PLC0415 - driver / emulate / bridge
+
+    add_commands(sub)
     return p
 
 

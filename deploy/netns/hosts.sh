@@ -107,7 +107,7 @@ status() {
 }
 
 routers() {
-    local dir=$1 conf host i ns listen started=0
+    local dir=$1 conf host i ns started=0
     [ -d "$dir" ] || die "routers: no directory $dir"
     for conf in "$dir"/h*/router.json5; do
         [ -e "$conf" ] || continue
@@ -115,11 +115,8 @@ routers() {
         i=${host#h}
         ns=$(host_ns "$i")
         ip netns list | awk '{print $1}' | grep -qx "$ns" || die "routers: host $ns is not up"
-        # `uwsimnet router` listens where --listen says (default tcp/[::]:7447): repeat the file's endpoints
-        listen=$("$PY" -c 'import json,sys,zenoh; c=zenoh.Config.from_file(sys.argv[1]);
-print(" ".join("--listen="+e for e in json.loads(c.get_json("listen/endpoints"))))' "$conf")
-        # shellcheck disable=SC2086 - one --listen=EP per word
-        ip netns exec "$ns" "$PY" -m uwsimnet_zenoh.cli router --config "$conf" $listen \
+        # `uwsimnet router --config` listens on the file's listen/endpoints
+        ip netns exec "$ns" "$PY" -m uwsimnet_zenoh.cli router --config "$conf" \
             >"$dir/$host/router.log" 2>&1 </dev/null &
         echo $! >"$dir/$host/router.pid"
         started=$((started + 1))

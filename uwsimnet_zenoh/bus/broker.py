@@ -11,8 +11,9 @@ on the key space of docs/gli-protocol.md:
   vehicles it carries at their `poseRate` (default 10 Hz).
 * `trace/<channel>` repeats every trace record; `clock` carries simulation time (and the wall epoch).
 * `control/<op>` queryables (bus/control.py); `driver/real` tokens of real modem drivers (HIL swap):
-  while one is present the broker stops serving that id (its sim token goes away, its tx is ignored,
-  nothing is published for it); when it goes, the broker serves the id again.
+  while one is present the broker stops serving that id (its sim token goes away, the simulated modem
+  leaves the channel and what it held ends `dropped` reason `swapped`, its tx is ignored); when the
+  token goes the device is re-added from the scene and served again.
 
 Threading: Zenoh callbacks run on Zenoh's threads and only hand raw bytes to `clock.call_soon`; all
 decoding, simulation and publishing happens on the engine thread.  A bad message never stops the
@@ -106,6 +107,8 @@ class Broker:
         self.endpoints: dict[str, Endpoint] = {}
         self.real: set[str] = set()
         """Modem ids for which a real driver holds `driver/real`."""
+        self._swapped: dict[str, tuple[str, Any]] = {}
+        """Modems handed to a real driver: (vehicle, device config) to put them back when it leaves."""
         self.foreign: set[str] = set(foreign)
         """Modem ids of the scene served by other brokers (their channels are not ours): ignored here."""
         self.counters: Counter[str] = Counter()
@@ -293,11 +296,19 @@ class Broker:
         ep.rx_pub.put(codec.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t))
 
     def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
-        ep = self.serving(m.id)
-        if ep is None:
-            return
         tag = frame.tag if isinstance(frame.tag, int) and not isinstance(frame.tag, bool) else None
-        ep.status_pub.put(codec.encode_status(tag, event, reason, t))
+        if getattr(m, "hil_swapped", False):
+            # a simulated modem handed to a real driver: what it still held ends here, said once
+            if event == "dropped" and reason == "removed":
+                reason = "swapped"
+            with contextlib.suppress(Exception):
+                self.session.put(self.keys.status(m.id), codec.encode_status(tag, event, reason, t, frame.seq),
+                                 congestion_control=DROP)
+            return
+        ep = self.serving(m.id)
+        if ep is None or ep.modem is not m:
+            return
+        ep.status_pub.put(codec.encode_status(tag, event, reason, t, frame.seq))
 
     def _trace_sink(self, rec: dict) -> None:
         pub = self._trace_pubs.get(rec["ch"])
@@ -339,18 +350,48 @@ class Broker:
         if k is None or k.leaf != "driver" or k.driver != "real" or k.world != self.keys.world:
             return
         dev = k.name
-        ep = self.endpoints.get(dev)
         if present:
+            if dev in self.real:
+                return
+            ep = self.endpoints.get(dev)
+            if ep is not None:
+                self._swap_out(dev, ep)
             self.real.add(dev)
-            if ep is not None and ep.token is not None:
-                self._undeclare(ep.token)
-                ep.token = None
-                log.info("%s: a real driver took over; the simulated modem stops serving it", dev)
         else:
+            if dev not in self.real:
+                return
             self.real.discard(dev)
-            if ep is not None and ep.token is None:
-                ep.token = self.session.liveliness().declare_token(self.keys.driver(dev, "sim"))
+            held = self._swapped.pop(dev, None)
+            if held is not None and dev not in self.net.modems:
+                vehicle, cfg = held
+                try:
+                    m = self.net.add_device(vehicle, cfg)
+                except ValueError as e:
+                    log.warning("%s: the real driver left but the simulated modem cannot come back: %s", dev, e)
+                    return
+                self.attach(m)
+                self.counters["swap_in"] += 1
                 log.info("%s: the real driver left; the simulated modem serves it again", dev)
+            elif dev in self.endpoints and self.endpoints[dev].token is None:
+                self.endpoints[dev].token = self.session.liveliness().declare_token(self.keys.driver(dev, "sim"))
+
+    def _swap_out(self, dev: str, ep: Endpoint) -> None:
+        """A real driver takes `dev` (HIL swap): the simulated modem leaves the channel, so simulated
+        frames neither reach it nor come from it; every frame it still held ends with a `dropped`
+        status (reason `swapped`) before its keys go quiet."""
+        m = ep.modem
+        if ep.token is not None:
+            self._undeclare(ep.token)
+            ep.token = None
+        m.hil_swapped = True                      # type: ignore[attr-defined]  (see _on_status)
+        while m.fifo:
+            m.drop(m.fifo_pop(), "swapped")
+        self._swapped[dev] = (m.vehicle, m.cfg)
+        with contextlib.suppress(ValueError):
+            self.net.remove_device(dev)
+        self.detach(dev)
+        self.counters["swap_out"] += 1
+        log.info("%s: a real driver took over; the simulated modem left the channel", dev)
 
     # -- queries ---------------------------------------------------------------------------------
     def info(self, dev: str) -> dict[str, Any]:

@@ -154,8 +154,11 @@ def decode_rx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> RxFrame:
 
 
 # -- status: modem -> app -----------------------------------------------------------------------
-def encode_status(tag: int | None, event: str, reason: str | None, t: float) -> bytes:
-    return pack({"tag": tag, "event": event, "reason": reason, "t": float(t)})
+def encode_status(tag: int | None, event: str, reason: str | None, t: float, seq: int | None = None) -> bytes:
+    m: dict[str, Any] = {"tag": tag, "event": event, "reason": reason, "t": float(t)}
+    if seq is not None:
+        m["seq"] = int(seq)
+    return pack(m)
 
 
 @dataclass(frozen=True, slots=True)
@@ -164,6 +167,7 @@ class Status:
     event: str
     reason: str | None
     t: float
+    seq: int | None = None
 
 
 def decode_status(raw: bytes) -> Status:
@@ -176,7 +180,8 @@ def decode_status(raw: bytes) -> Status:
         raise CodecError("invalid", "'reason' must be a string or nil")
     if not _is_num(m.get("t")):
         raise CodecError("invalid", "'t' must be a number")
-    return Status(_tag(m), ev, reason, float(m["t"]))
+    seq = m.get("seq")
+    return Status(_tag(m), ev, reason, float(m["t"]), seq if _is_int(seq) else None)
 
 
 # -- pose samples -------------------------------------------------------------------------------

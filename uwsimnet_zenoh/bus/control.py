@@ -89,6 +89,9 @@ class Control:
                         "tx_channel": ep.modem.tx_channel.id, "rx_channel": ep.modem.rx_channel.id,
                         "kind": "real" if dev in b.real else "sim"}
                   for dev, ep in b.endpoints.items()}
+        for dev, (vehicle, cfg) in b._swapped.items():          # handed to a real driver (HIL swap)
+            modems[dev] = {"vehicle": vehicle, "address": cfg.address, "tx_channel": cfg.tx_channel,
+                           "rx_channel": cfg.rx_channel, "kind": "real"}
         vehicles = {}
         for name, v in net.vehicles.items():
             i = net.poses.index[name]

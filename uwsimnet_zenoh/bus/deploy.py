@@ -501,7 +501,7 @@ def render(inv: Inventory | Mapping[str, Any], passwords: Mapping[str, str] | No
         out[f"{host}/router.json5"] = _json5(router_config(inv, host, pw),
                                              f"router of {host} (connects to: {links})", inv)
         out[f"{host}/users.txt"] = users
-        # `uwsimnet router` takes its listen endpoints from --listen (tcp/[::]:7447 without it)
+        # `uwsimnet router --config` listens on the file's endpoints; repeating them here is harmless
         listen = " ".join(f"--listen={e}" for e in h.listen)
         out[f"{host}/router.env"] = (f"# EnvironmentFile of uwsimnet-router@{host}.service (generated)\n"
                                      f"ROUTER_ARGS={listen}\n")

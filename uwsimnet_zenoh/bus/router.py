@@ -7,6 +7,7 @@ it in client mode; routers of different machines connect to each other with `--c
 
 from __future__ import annotations
 
+import json
 import signal
 import threading
 from typing import Any
@@ -42,12 +43,23 @@ class StopOnSignal:
             signal.signal(s, h)
 
 
+def _endpoints(raw: str, mode: str) -> list[str]:
+    """Endpoints from a `get_json` answer: a list, or Zenoh's per-mode default `{"router": [...], ...}`."""
+    v = json.loads(raw)
+    if isinstance(v, dict):
+        v = v.get(mode) or []
+    return [str(e) for e in v] if isinstance(v, list) else []
+
+
 def run_router(args: Any) -> int:
     from ..cli import UserError  # noqa: PLC0415
 
-    listen = args.listen or [DEFAULT_ROUTER_LISTEN]
+    # --listen wins; else the file's listen endpoints (TLS-only configurations); else tcp/[::]:7447
+    listen = args.listen or ([] if args.config else [DEFAULT_ROUTER_LISTEN])
     try:
         conf = make_config("router", listen=listen, connect=args.connect or (), config_file=args.config)
+        if not listen:
+            listen = _endpoints(conf.get_json("listen/endpoints"), "router") or [DEFAULT_ROUTER_LISTEN]
     except (BusError, ValueError) as e:
         raise UserError(f"router: {e}") from None
     with StopOnSignal() as stop:

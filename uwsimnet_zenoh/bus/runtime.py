@@ -60,7 +60,9 @@ def select_channels(scene: Scene, channels: set[int] | None) -> tuple[Scene, set
     """The part of `scene` a broker for `channels` hosts, and the dccommsIds it leaves to others.
 
     Vehicles all stay (their poses are needed for geometry); a device stays if both its channels are
-    served; flows stay if their source does."""
+    served; flows stay if their source does.  A device that transmits on one channel and receives on
+    another is one modem (one FIFO, one MAC, duplex), so one broker serves both channels: a selection
+    that splits it is refused (UserError, one line)."""
     if channels is None:
         return scene, set()
     foreign: set[str] = set()
@@ -70,11 +72,13 @@ def select_channels(scene: Scene, channels: set[int] | None) -> tuple[Scene, set
         for d in v.devices:
             if d.tx_channel in channels and d.rx_channel in channels:
                 keep.append(d)
+            elif (d.tx_channel in channels) != (d.rx_channel in channels):
+                both = ",".join(str(c) for c in sorted(channels | {d.tx_channel, d.rx_channel}))
+                raise _user_error(f"--channels {','.join(str(c) for c in sorted(channels))}: device"
+                                  f" {d.dccomms_id} transmits on channel {d.tx_channel} and receives on channel"
+                                  f" {d.rx_channel}; one broker must serve both (e.g. --channels {both})")
             else:
                 foreign.add(d.dccomms_id)
-                if (d.tx_channel in channels) != (d.rx_channel in channels):
-                    log.warning("%s: tx channel %d and rx channel %d are not both served here; left to the"
-                                " broker that serves both", d.dccomms_id, d.tx_channel, d.rx_channel)
         vehicles.append(v.model_copy(update={"devices": tuple(keep)}))
     kept = {d.dccomms_id for v in vehicles for d in v.devices}
     return scene.model_copy(update={
@@ -96,6 +100,26 @@ def parse_external(spec: str | None, scene: Scene) -> set[str]:
         raise _user_error(f"--external-flows: no flow {', '.join(sorted(unknown))} in the scene"
                           f" (flows: {', '.join(sorted(names)) or 'none'})")
     return out
+
+
+def _file_endpoints(path: str) -> tuple[str, list[str], list[str]]:
+    """(mode, connect, listen) of a Zenoh configuration file: what `uwsimnet run --zenoh-config FILE`
+    (or ZENOH_CONFIG) uses when neither --listen nor --connect is given."""
+    import json  # noqa: PLC0415
+
+    import zenoh  # noqa: PLC0415
+
+    try:
+        conf = zenoh.Config.from_file(path)
+        mode = json.loads(conf.get_json("mode")) or "client"
+        eps = {k: json.loads(conf.get_json(f"{k}/endpoints")) for k in ("connect", "listen")}
+    except (zenoh.ZError, ValueError) as e:
+        raise _user_error(f"{path}: {' '.join(str(e).split())}") from None
+    if mode not in ("client", "router"):
+        raise _user_error(f"{path}: mode {mode!r}: uwsimnet run is a client or a router")
+    for k, v in eps.items():                        # Zenoh's defaults are per mode: {"router": [...], ...}
+        eps[k] = [str(e) for e in (v.get(mode) or [] if isinstance(v, dict) else v or [])]
+    return mode, eps["connect"], eps["listen"] if mode == "router" else []
 
 
 def realtime_priority() -> None:
@@ -154,6 +178,12 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
     connect = list(args.connect or ())
     if connect and listen:
         raise _user_error("give --listen (embedded router) or --connect (existing router), not both")
+    zconf = getattr(args, "zenoh_config", None) or os.environ.get("ZENOH_CONFIG") or None
+    mode = "client" if connect else "router"
+    if zconf and not listen and not connect:        # the file says it all: its mode and its endpoints
+        mode, connect, listen = _file_endpoints(zconf)
+        if mode == "client" and not connect:
+            raise _user_error(f"{zconf}: a client configuration without connect/endpoints; give --connect")
     if not connect and not listen:
         listen = [DEFAULT_ENDPOINT]
 
@@ -170,8 +200,8 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                                         net.duration))
     clock = RealtimeClock(net.sched, until=duration, spin=float(os.environ.get("UWSIMNET_SPIN") or 0.001))
     try:
-        conf = (make_config("client", connect=connect, connect_timeout_ms=3000) if connect
-                else make_config("router", listen=listen))
+        conf = (make_config("client", connect=connect, connect_timeout_ms=3000, config_file=zconf)
+                if mode == "client" else make_config("router", listen=listen, config_file=zconf))
     except (BusError, ValueError) as e:
         raise _user_error(str(e)) from None
 

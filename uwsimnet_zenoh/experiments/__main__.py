@@ -9,12 +9,14 @@ from pathlib import Path
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="uwsimnet-experiments")
-    ap.add_argument("name", choices=["phy-layer", "twinbot"])
+    ap.add_argument("name", choices=["phy-layer", "twinbot", "hil-formation"])
     ap.add_argument("--out", default=None, help="output folder (default out/NAME)")
     a = ap.parse_args(argv)
     out = Path(a.out or f"out/{a.name}")
     if a.name == "phy-layer":
         from . import phy_layer as experiment
+    elif a.name == "hil-formation":
+        from . import hil_formation as experiment
     else:
         from . import twinbot as experiment
     experiment.run(out)

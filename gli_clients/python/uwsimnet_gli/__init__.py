@@ -15,8 +15,8 @@ Only eclipse-zenoh and msgpack: no simulator import.  The wire protocol is docs/
 
 from ._wire import BROADCAST, DEFAULT_ENDPOINT, Frame, Status
 from .modem import Modem
-from .world import GliError, World, client_config, discover_worlds
+from .world import GliError, World, client_config, discover_worlds, load_config
 
 __all__ = ["BROADCAST", "DEFAULT_ENDPOINT", "Frame", "GliError", "Modem", "Status", "World", "client_config",
-           "discover_worlds"]
+           "discover_worlds", "load_config"]
 __version__ = "0.1.0"

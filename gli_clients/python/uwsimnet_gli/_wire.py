@@ -73,6 +73,8 @@ class Status:
     reason: str | None
     t: float
     modem: str = ""
+    seq: int | None = None
+    """the modem's sequence number of the frame (the `seq` its receivers see in `rx`), when known"""
 
 
 def _num(x: Any) -> bool:
@@ -115,8 +117,9 @@ def decode_status(raw: bytes, modem: str = "") -> Status | None:
         return None
     tag = m.get("tag")
     reason = m.get("reason")
+    seq = m.get("seq")
     return Status(tag if _int(tag) else None, m["event"], reason if isinstance(reason, str) else None,
-                  float(m["t"]), modem)
+                  float(m["t"]), modem, seq if _int(seq) else None)
 
 
 def encode_pose(p, *, v=None, q=None, t: float | None = None) -> bytes:

@@ -10,7 +10,8 @@
     gli control pause ; gli control move vehicle='"bravo"' p='[10,0,5]'
 
 Common options: -e/--connect ENDPOINT (default tcp/127.0.0.1:7447), -w/--world NAME (default: the only
-world that answers), --config FILE (a Zenoh JSON5 configuration instead).
+world that answers), --config FILE (a Zenoh JSON5 client configuration, default $ZENOH_CONFIG; -e replaces
+its endpoints).
 """
 
 from __future__ import annotations
@@ -28,11 +29,11 @@ from typing import Any
 import zenoh
 
 from ._wire import DEFAULT_ENDPOINT, Frame, Status, decode_rx, decode_status, unpack
-from .world import GliError, World
+from .world import GliError, World, load_config
 
 
 def _world(args: argparse.Namespace) -> World:
-    conf = zenoh.Config.from_file(args.config) if args.config else None
+    conf = load_config(args.config, args.connect)
     return World(args.world, connect=args.connect or DEFAULT_ENDPOINT, config=conf)
 
 
@@ -287,7 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
                                 " pose, flow, control")
     p.add_argument("-e", "--connect", action="append", help=f"router endpoint (default {DEFAULT_ENDPOINT})")
     p.add_argument("-w", "--world", help="world name (default: the only one that answers)")
-    p.add_argument("--config", help="Zenoh JSON5 configuration file (instead of -e)")
+    p.add_argument("--config", "--zenoh-config", dest="config",
+                   help="Zenoh JSON5 client configuration file (TLS, user/password; default $ZENOH_CONFIG);"
+                        " -e replaces its endpoints")
     sub = p.add_subparsers(dest="cmd", required=True)
 
     s = sub.add_parser("send", help="send frames from a modem")

@@ -29,6 +29,26 @@ def client_config(connect: str | Sequence[str] = DEFAULT_ENDPOINT, *, timeout_ms
     return conf
 
 
+def load_config(config_file: str | None = None, connect: str | Sequence[str] | None = None, *,
+                timeout_ms: int = 2000) -> zenoh.Config:
+    """A client configuration: `config_file`, else $ZENOH_CONFIG, else `client_config()`; `connect`
+    (when given) replaces the file's connect endpoints.  Use it to log in with TLS and user/password:
+    `World(config=load_config("/etc/uwsimnet/robot1/clients/robot1-app.json5"))`."""
+    import os  # noqa: PLC0415
+
+    path = config_file or os.environ.get("ZENOH_CONFIG") or None
+    if path is None:
+        return client_config(connect or DEFAULT_ENDPOINT, timeout_ms=timeout_ms)
+    try:
+        conf = zenoh.Config.from_file(path)
+        if connect:
+            endpoints = [connect] if isinstance(connect, str) else list(connect)
+            conf.insert_json5("connect/endpoints", json.dumps(endpoints))
+    except zenoh.ZError as e:
+        raise GliError(f"{path}: {' '.join(str(e).split())}") from None
+    return conf
+
+
 def discover_worlds(session: zenoh.Session, timeout: float = 2.0) -> list[str]:
     """Names of the worlds whose brokers answer `uwsimnet/*/control/state`."""
     found = set()
@@ -49,17 +69,20 @@ class World:
 
     `name=None` asks the brokers reachable through the router which worlds exist and takes the only one.
     Pass `session=` to reuse a session you opened (it is then not closed by `close()`), or `config=` for a
-    full Zenoh configuration (TLS, other endpoints).
+    full Zenoh configuration (TLS, other endpoints; see `load_config`).  Without either, the environment
+    variable ZENOH_CONFIG names a client configuration file to use (`connect=` replaces its endpoints).
     """
 
-    def __init__(self, name: str | None = None, *, connect: str | Sequence[str] = DEFAULT_ENDPOINT,
+    def __init__(self, name: str | None = None, *, connect: str | Sequence[str] | None = None,
                  config: zenoh.Config | None = None, session: zenoh.Session | None = None,
                  timeout: float = 2.0) -> None:
         self._own = session is None
         if session is None:
             try:
-                session = zenoh.open(config if config is not None else client_config(connect))
+                # no config: $ZENOH_CONFIG if set (connect replaces its endpoints), else client_config()
+                session = zenoh.open(config if config is not None else load_config(None, connect))
             except zenoh.ZError as e:
+                connect = connect or DEFAULT_ENDPOINT
                 where = connect if isinstance(connect, str) else ", ".join(connect)
                 why = " ".join(str(e).split()).split(" at /")[0]            # no Rust source locations
                 raise GliError(f"cannot connect to {where}: {why} (is `uwsimnet run` or `uwsimnet router`"

@@ -1,0 +1,101 @@
+"""Kinematic vehicles: the sans-IO model, and `uwsimnet vehicles` driving a broker's vehicle over Zenoh."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import msgpack
+import pytest
+
+from uwsimnet_zenoh.mobility.kinematic import CommandError, KinematicVehicle
+
+pytest.importorskip("uwsimnet_gli")
+from test_broker_e2e import UWSIMNET, Broker, Proc, device_xml, scene_xml, vehicle_xml  # noqa: E402
+from uwsimnet_gli import World  # noqa: E402
+
+WORLD = "kine"
+
+
+def test_velocity_is_clipped_and_integrated():
+    v = KinematicVehicle("k", (0, 0, 0), max_speed=1.0)
+    v.command({"v": [3.0, 4.0, 0.0]})                   # 5 m/s asked: 1 m/s along (0.6, 0.8)
+    for _ in range(10):
+        v.step(0.1)
+    assert v.p == pytest.approx((0.6, 0.8, 0.0))
+    v.command({"stop": True})
+    v.step(0.1)
+    assert v.v == (0.0, 0.0, 0.0) and v.p == pytest.approx((0.6, 0.8, 0.0))
+
+
+def test_waypoints_reached_in_order_without_overshoot():
+    v = KinematicVehicle("k", (0, 0, 0), max_speed=0.5)
+    v.command({"waypoints": [[1, 0, 0], [1, 1, 0]], "speed": 2.0})    # speed capped at 0.5
+    t, maxd = 0.0, 0.0
+    while v.mode != "idle" and t < 10:
+        v.step(0.05)
+        t += 0.05
+        maxd = max(maxd, v.p[0])
+        assert math.hypot(*v.v) <= 0.5 + 1e-9
+    assert v.mode == "idle" and v.p == pytest.approx((1, 1, 0), abs=0.02)
+    assert 3.9 <= t <= 4.2 and maxd <= 1.0 + 1e-9
+
+
+def test_acceleration_limit_and_bad_commands():
+    v = KinematicVehicle("k", max_speed=1.0, max_accel=0.5)
+    v.command({"v": [1, 0, 0]})
+    v.step(1.0)
+    assert v.v == pytest.approx((0.5, 0, 0))
+    v.step(1.0)
+    assert v.v == pytest.approx((1.0, 0, 0))
+    for bad in ([1, 2], {"v": [1, 2]}, {"waypoint": [1, "x", 0]}, {"waypoints": []}, {"speed": -1, "v": [0, 0, 0]},
+                {"fly": 1}):
+        with pytest.raises(CommandError):
+            v.command(bad)
+
+
+def test_vehicles_command_moves_a_broker_vehicle(tmp_path: Path):
+    scene = tmp_path / "k.xml"
+    scene.write_text(scene_xml(world=WORLD, vehicles="".join([
+        vehicle_xml("base", (0, 0, 0), device_xml("base-m", 1)),
+        vehicle_xml("k", None, device_xml("k-m", 2)),
+    ])))
+    started: list[Proc] = []
+    try:
+        broker = Broker(scene, tmp_path / "trace.jsonl")
+        started.append(broker)
+        veh = Proc([*UWSIMNET, "vehicles", "--vehicle", "k=10,0,0", "--max-speed", "2", "--rate", "20",
+                    "--connect", broker.endpoint])
+        started.append(veh)
+        veh.expect("uwsimnet: vehicles ready in kine: k", 20)
+        with World(WORLD, connect=broker.endpoint) as w:
+            def pos():
+                p = w.control("state")["vehicles"]["k"]["p"]
+                return None if p is None else tuple(p)
+
+            deadline = time.monotonic() + 5
+            while pos() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert pos() == pytest.approx((10, 0, 0), abs=0.01)
+            w.session.put(f"uwsimnet/{WORLD}/vehicle/k/cmd", msgpack.packb({"waypoint": [12, 0, 0]}))
+            w.session.put(f"uwsimnet/{WORLD}/vehicle/k/cmd", b"\xc1garbage")          # ignored
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline and pos()[0] < 11.98:
+                time.sleep(0.05)
+            assert pos() == pytest.approx((12, 0, 0), abs=0.05)
+            # the modem moved with it: propagation delay of a frame follows the new distance
+            base, k = w.modem("base-m"), w.modem("k-m")
+            time.sleep(0.3)
+            base.send(2, b"ping")
+            f = k.receive(timeout=5)
+            assert f is not None
+            assert f.t_rx - f.t_tx == pytest.approx(12 * 0.6667e-3 + 4 * 8 / 10_000, abs=1e-4)   # 12 m, 4 bytes
+    finally:
+        errors = []
+        for p in reversed(started):
+            try:
+                p.stop()
+            except AssertionError as e:
+                errors.append(str(e))
+        assert not errors, errors

@@ -1,0 +1,120 @@
+"""Kinematic vehicles on Zenoh: `mobility.kinematic.KinematicVehicle`s stepped on wall time, their poses
+published on `uwsimnet/<world>/pose/<name>` (with velocity, so the broker extrapolates between samples),
+commands read from `uwsimnet/<world>/vehicle/<name>/cmd` (msgpack maps, see mobility/kinematic.py).
+
+    uwsimnet vehicles --vehicle leader=0,0,-5 --vehicle f1=-1.5,0,-5 --max-speed 0.5 --world W
+
+The vehicles of the scene that these drive must have `<poseSource>zenoh</poseSource>`.  A bad command is
+logged and counted, never fatal.  Threading: the Zenoh callback only enqueues; one thread steps and
+publishes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Iterable
+from typing import Any
+
+import zenoh
+
+from ..mobility.kinematic import CommandError, KinematicVehicle
+from . import codec
+from .keys import Keys, check_chunk
+
+log = logging.getLogger("uwsimnet.bus.kinematic")
+
+
+def cmd_key(world: str, name: str = "*") -> str:
+    return f"uwsimnet/{world}/vehicle/{name}/cmd"
+
+
+class KinematicRunner:
+    def __init__(self, session: zenoh.Session, world: str, vehicles: Iterable[KinematicVehicle], *,
+                 rate_hz: float = 10.0) -> None:
+        self.session = session
+        self.keys = Keys(world)
+        self.world = world
+        self.vehicles = {check_chunk(v.name, "vehicle name"): v for v in vehicles}
+        self.period = 1.0 / rate_hz
+        self.counters: Counter[str] = Counter()
+        self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._pubs = {n: session.declare_publisher(self.keys.pose(n)) for n in self.vehicles}
+        self._sub = session.declare_subscriber(cmd_key(world), self._on_cmd)
+        self._lock = threading.Lock()
+
+    def start(self) -> KinematicRunner:
+        self._publish(0.0)
+        self._thread = threading.Thread(target=self._loop, name="uwsimnet-kinematic", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5)
+        for e in (self._sub, *self._pubs.values()):
+            with contextlib.suppress(Exception):
+                e.undeclare()
+
+    def __enter__(self) -> KinematicRunner:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def state(self) -> dict[str, dict[str, Any]]:
+        with self._lock:
+            return {n: v.state() for n, v in self.vehicles.items()}
+
+    def _on_cmd(self, sample: zenoh.Sample) -> None:
+        self._inbox.put((str(sample.key_expr), sample.payload.to_bytes()))
+
+    def _apply(self, key: str, raw: bytes) -> None:
+        parts = key.split("/")
+        name = parts[3] if len(parts) == 5 else ""
+        v = self.vehicles.get(name)
+        if v is None:
+            self.counters["cmd_unknown"] += 1
+            return
+        try:
+            v.command(codec.unpack(raw, codec.MAX_SMALL_MESSAGE))
+            self.counters["cmd"] += 1
+        except (codec.CodecError, CommandError) as e:
+            self.counters["cmd_bad"] += 1
+            log.warning("%s: command ignored: %s", name, e)
+
+    def _loop(self) -> None:
+        last = time.monotonic()
+        nxt = last + self.period
+        while not self._stop.wait(max(0.0, nxt - time.monotonic())):
+            now = time.monotonic()
+            with self._lock:
+                while True:
+                    try:
+                        key, raw = self._inbox.get_nowait()
+                    except queue.Empty:
+                        break
+                    self._apply(key, raw)
+                dt = now - last
+                for v in self.vehicles.values():
+                    v.step(dt)
+            last = now
+            self._publish(now)
+            nxt += self.period
+            if nxt < now:
+                nxt = now + self.period
+
+    def _publish(self, now: float) -> None:
+        with self._lock:
+            out = [(n, v.p, v.v, v.t) for n, v in self.vehicles.items()]
+        for n, p, vel, t in out:
+            with contextlib.suppress(Exception):
+                self._pubs[n].put(codec.encode_pose(p, v=vel, t=t))
+                self.counters["poses"] += 1

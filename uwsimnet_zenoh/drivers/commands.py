@@ -1,0 +1,248 @@
+"""`uwsimnet driver ...`, `uwsimnet emulate ...` and `uwsimnet bridge ...`: hardware and foreign apps on
+a running broker (docs/drivers.md, docs/bridges.md).
+
+    uwsimnet driver evologics --host H --port P --id X [--world W] [--connect E]   # real S2C modem serves X
+    uwsimnet driver serial --device /dev/ttyUSB0 --id X [--address A]             # dccomms serial radio serves X
+    uwsimnet emulate evologics --port P --id X [--world W] [--connect E]         # AT server for simulated X
+    uwsimnet bridge socket --port P --id X ...  /  uwsimnet bridge mq --id X ...
+
+Each prints one `uwsimnet: ... ready` line on stdout once it serves, and runs until SIGINT/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+
+
+def add_commands(sub: Any) -> None:
+    """Register the subcommands on `uwsimnet`'s subparsers."""
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--id", required=True, help="the modem's dccommsId")
+        p.add_argument("--world", help="world name (default: the only one that answers)")
+        p.add_argument("--connect", action="append", help=f"Zenoh router (default {DEFAULT_CONNECT})")
+        p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 client configuration")
+
+    d = sub.add_parser("driver", help="serve a modem id with a real modem (HIL swap)")
+    dsub = d.add_subparsers(dest="driver", required=True)
+    de = dsub.add_parser("evologics", help="EvoLogics S2C modem, AT commands over TCP")
+    de.add_argument("--host", required=True)
+    de.add_argument("--port", type=int, default=9200)
+    de.add_argument("--mode", choices=["auto", "im", "burst"], default="auto")
+    common(de)
+    de.set_defaults(fn=cmd_driver)
+    ds = dsub.add_parser("serial", help="transparent serial radio carrying dccomms frames")
+    ds.add_argument("--device", required=True, help="serial device or pty path")
+    ds.add_argument("--address", type=int, help="the radio's address (default: the simulated modem's)")
+    ds.add_argument("--baud", type=int, default=9600, help="0: leave the line speed alone (pty)")
+    common(ds)
+    ds.set_defaults(fn=cmd_driver)
+
+    e = sub.add_parser("emulate", help="make a simulated modem look like a real device")
+    esub = e.add_subparsers(dest="emulator", required=True)
+    ee = esub.add_parser("evologics", help="EvoLogics S2C AT command server on TCP")
+    ee.add_argument("--port", type=int, default=9200)
+    ee.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    common(ee)
+    ee.set_defaults(fn=cmd_emulate)
+
+    b = sub.add_parser("bridge", help="a modem for applications that cannot speak Zenoh")
+    bsub = b.add_subparsers(dest="bridge", required=True)
+    bs = bsub.add_parser("socket", help="TCP (and UDP) socket bridge, docs/bridges.md")
+    bs.add_argument("--port", type=int, default=0, help="TCP port (0: a free one, printed)")
+    bs.add_argument("--udp-port", type=int, help="also serve UDP on this port (0: a free one)")
+    bs.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    common(bs)
+    bs.set_defaults(fn=cmd_bridge)
+    bm = bsub.add_parser("mq", help="dccomms POSIX message queues /<id>_tx_dlnk_phy, /<id>_rx_dlnk_phy")
+    bm.add_argument("--dccomms-id", help="queue name prefix (default: --id)")
+    common(bm)
+    bm.set_defaults(fn=cmd_bridge)
+
+    k = sub.add_parser("vehicles", help="kinematic vehicles: poses on pose/<name>, commands on vehicle/<name>/cmd")
+    k.add_argument("--vehicle", action="append", required=True, metavar="NAME=X,Y,Z",
+                   help="a vehicle and its start position (repeat)")
+    k.add_argument("--max-speed", type=float, default=1.0, help="m/s")
+    k.add_argument("--max-accel", type=float, help="m/s^2 (default: none)")
+    k.add_argument("--rate", type=float, default=10.0, help="pose samples per second")
+    k.add_argument("--world", help="world name (default: the only one that answers)")
+    k.add_argument("--connect", action="append", help=f"Zenoh router (default {DEFAULT_CONNECT})")
+    k.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 client configuration")
+    k.set_defaults(fn=cmd_vehicles)
+
+
+def _log() -> None:
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+
+
+@contextlib.contextmanager
+def _session(args: argparse.Namespace) -> Iterator[Any]:
+    from ..bus.session import BusError, make_config, open_session
+
+    try:
+        conf = make_config("client", connect=args.connect or [DEFAULT_CONNECT],
+                           config_file=args.zenoh_config, connect_timeout_ms=3000)
+        with open_session(conf) as s:
+            yield s
+    except BusError as e:
+        from ..cli import UserError
+
+        raise UserError(f"zenoh: {e}") from None
+
+
+def _world(s: Any, args: argparse.Namespace) -> str:
+    from ..cli import UserError
+    from .zenoh_backend import BackendError, discover_world
+
+    if args.world:
+        return args.world
+    try:
+        return discover_world(s)
+    except BackendError as e:
+        raise UserError(str(e)) from None
+
+
+def _wait_for_signal() -> None:
+    stop = threading.Event()
+    old = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def cmd_driver(args: argparse.Namespace) -> int:
+    from ..bus.keys import Keys
+    from ..cli import UserError
+    from .zenoh_backend import query_info
+    from .zenoh_host import DriverHost
+
+    _log()
+    with _session(args) as s:
+        world = _world(s, args)
+        if args.driver == "evologics":
+            from .evologics import EvoLogicsDriver
+
+            drv: Any = EvoLogicsDriver(args.host, args.port, args.id, mode=args.mode)
+        else:
+            from .serial_radio import SerialRadioDriver
+
+            address = args.address
+            if address is None:
+                info = query_info(s, Keys(world), args.id)
+                if info is None:
+                    raise UserError(f"{args.id}: no simulated modem answers in world {world!r}; give --address")
+                address = int(info["address"])
+            drv = SerialRadioDriver(args.device, address, args.id, baud=args.baud or None)
+        if not drv.open(wait=10.0):
+            drv.close()
+            raise UserError(f"{args.id}: the device did not open ({getattr(drv, 'last_error', '')})")
+        host = DriverHost(s, world, args.id, drv)
+        try:
+            host.start()
+            print(f"uwsimnet: driver {args.driver} ready for {world}/{args.id}", flush=True)
+            _wait_for_signal()
+        finally:
+            host.close()
+            drv.close()
+    return 0
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    from ..cli import UserError
+    from .emulators import EvoLogicsEmulator
+    from .zenoh_backend import BackendError, ZenohBackend
+
+    _log()
+    with _session(args) as s:
+        world = _world(s, args)
+        try:
+            be = ZenohBackend(s, world, args.id)
+        except BackendError as e:
+            raise UserError(str(e)) from None
+        emu = EvoLogicsEmulator(be, args.host, args.port)
+        try:
+            host, port = emu.start()
+            print(f"uwsimnet: emulator evologics ready for {world}/{args.id} on {host}:{port}", flush=True)
+            _wait_for_signal()
+        finally:
+            emu.close()
+            be.close()
+    return 0
+
+
+def cmd_bridge(args: argparse.Namespace) -> int:
+    from ..cli import UserError
+    from .zenoh_backend import BackendError, ZenohBackend
+
+    _log()
+    with _session(args) as s:
+        world = _world(s, args)
+        try:
+            be = ZenohBackend(s, world, args.id)
+        except BackendError as e:
+            raise UserError(str(e)) from None
+        try:
+            if args.bridge == "socket":
+                from ..bridges.socket_bridge import SocketBridge
+
+                br: Any = SocketBridge(be, args.host, args.port, args.udp_port).start()
+                where = f"tcp {args.host}:{br.tcp_port}" + (f" udp {br.udp_port}" if br.udp_port else "")
+            else:
+                from ..bridges import posix_mq
+                from ..bridges.mq_bridge import MqBridge
+
+                if not posix_mq.available():
+                    raise UserError("POSIX message queues are not available on this system")
+                br = MqBridge(be, args.dccomms_id or args.id)
+                br.start()
+                where = f"queues {br.tx_name} {br.rx_name}"
+            try:
+                print(f"uwsimnet: bridge {args.bridge} ready for {world}/{args.id} on {where}", flush=True)
+                _wait_for_signal()
+            finally:
+                br.close()
+        finally:
+            be.close()
+    return 0
+
+
+def cmd_vehicles(args: argparse.Namespace) -> int:
+    from ..bus.kinematic import KinematicRunner
+    from ..cli import UserError
+    from ..mobility.kinematic import KinematicVehicle
+
+    _log()
+    vehicles = []
+    for spec in args.vehicle:
+        name, _, where = spec.partition("=")
+        try:
+            p = [float(x) for x in where.split(",")] if where else [0.0, 0.0, 0.0]
+            if len(p) != 3:
+                raise ValueError
+        except ValueError:
+            raise UserError(f"--vehicle {spec!r}: expected NAME=X,Y,Z") from None
+        vehicles.append(KinematicVehicle(name, p, max_speed=args.max_speed, max_accel=args.max_accel))
+    with _session(args) as s:
+        world = _world(s, args)
+        runner = KinematicRunner(s, world, vehicles, rate_hz=args.rate).start()
+        try:
+            print(f"uwsimnet: vehicles ready in {world}: {', '.join(v.name for v in vehicles)}", flush=True)
+            _wait_for_signal()
+        finally:
+            runner.close()
+    return 0
+
+
+if __name__ == "__main__":       # pragma: no cover
+    sys.exit("use `uwsimnet driver|emulate|bridge ...`")

@@ -1,0 +1,182 @@
+"""A `ModemBackend` (drivers/backend.py) on a running broker: one simulated modem reached over Zenoh.
+
+    with open_session(make_config("client", connect=["tcp/127.0.0.1:7447"])) as s:
+        be = ZenohBackend(s, "acoustic-apps", "alpha-modem")     # asks the modem's `info` first
+        emu = EvoLogicsEmulator(be, port=9200).start()
+
+`send` puts on `modem/<id>/tx` (with an integer tag of its own, mapped back to the caller's tag);
+`modem/<id>/rx` and `/status` come back as `BackendFrame` / `BackendStatus`.  Unicast frames are followed
+to their addressee through `trace/<channel>` (`DeliveryTracker`, keyed by the `seq` that status events
+carry), which yields `delivered` / `lost`.  `now()` is simulation time from the broker's `clock` samples.
+
+Callbacks run on Zenoh's threads: emulators only hand them to their own loop.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import logging
+import random
+import threading
+import time
+from collections import OrderedDict
+from typing import Any
+
+import zenoh
+
+from ..bus import codec
+from ..bus.keys import Keys
+from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback
+
+log = logging.getLogger("uwsimnet.drivers.zenoh")
+
+BROADCAST = 255
+
+
+class BackendError(RuntimeError):
+    """The modem does not answer (no broker, wrong world or id, handed to a real driver)."""
+
+
+def query_info(session: zenoh.Session, keys: Keys, dev: str, timeout: float = 3.0) -> dict[str, Any] | None:
+    for r in session.get(keys.info(dev), timeout=timeout):
+        if r.ok is not None:
+            with contextlib.suppress(Exception):
+                return codec.unpack(r.ok.payload.to_bytes(), codec.MAX_SMALL_MESSAGE)
+    return None
+
+
+def discover_world(session: zenoh.Session, timeout: float = 2.0) -> str:
+    """The one world whose broker answers `uwsimnet/*/control/state`."""
+    found = set()
+    for r in session.get("uwsimnet/*/control/state", timeout=timeout):
+        if r.ok is not None:
+            parts = str(r.ok.key_expr).split("/")
+            if len(parts) >= 2:
+                found.add(parts[1])
+    if len(found) != 1:
+        raise BackendError("no simulated world answers; give --world" if not found else
+                           f"several worlds answer ({', '.join(sorted(found))}); give --world")
+    return found.pop()
+
+
+class ZenohBackend:
+    def __init__(self, session: zenoh.Session, world: str, dev: str, *, timeout: float = 5.0,
+                 track_delivery: bool = True) -> None:
+        self.session = session
+        self.keys = Keys(world)
+        self.id = dev
+        deadline = time.monotonic() + timeout
+        info = None
+        while info is None and time.monotonic() < deadline:
+            info = query_info(session, self.keys, dev, timeout=min(1.0, timeout))
+            if info is None:
+                time.sleep(0.1)
+        if info is None:
+            raise BackendError(f"modem {dev!r} of world {world!r} does not answer on {self.keys.info(dev)}")
+        self._info = info
+        self.address = int(info["address"])
+        self.bitrate = float(info.get("bitrate") or 0.0) or None
+        self.on_frame: list[FrameCallback] = []
+        self.on_status: list[StatusCallback] = []
+        self.counters = {"sent": 0, "received": 0, "statuses": 0}
+        self.tracker = DeliveryTracker()
+        self._lock = threading.Lock()
+        self._tags: OrderedDict[int, tuple[Any, int]] = OrderedDict()     # our tag -> (caller's tag, dst)
+        self._next = itertools.count(random.getrandbits(40) + 1)     # apart from other writers' tags
+        self._clock: tuple[float, float, float] | None = None               # (sim t, wall, speed)
+        k = self.keys
+        self._pub = session.declare_publisher(k.tx(dev), express=True,
+                                              congestion_control=zenoh.CongestionControl.BLOCK)
+        self._subs = [
+            session.declare_subscriber(k.rx(dev), self._on_rx),
+            session.declare_subscriber(k.status(dev), self._on_status),
+            session.declare_subscriber(k.clock, self._on_clock),
+        ]
+        if track_delivery:
+            self._subs.append(session.declare_subscriber(k.trace(info.get("tx_channel", 0)), self._on_trace))
+
+    # -- ModemBackend -----------------------------------------------------------------------------
+    def now(self) -> float:
+        c = self._clock
+        if c is None:
+            return float(self._info.get("t", 0.0))
+        t, wall, speed = c
+        return t + (time.time() - wall) * speed
+
+    def send(self, dst: int, data: bytes, tag: Any = None, hint: str | None = None) -> None:
+        ours = next(self._next)
+        with self._lock:
+            self._tags[ours] = (tag, int(dst))
+            while len(self._tags) > 10000:
+                self._tags.popitem(last=False)
+        self.counters["sent"] += 1
+        self._pub.put(codec.encode_tx(int(dst), bytes(data), ours))
+
+    def info(self) -> dict[str, Any]:
+        return dict(self._info, counters=dict(self.counters))
+
+    def close(self) -> None:
+        for e in (self._pub, *self._subs):
+            with contextlib.suppress(Exception):
+                e.undeclare()
+        self._subs = []
+
+    # -- Zenoh callbacks --------------------------------------------------------------------------
+    def _on_clock(self, sample: zenoh.Sample) -> None:
+        with contextlib.suppress(Exception):
+            m = codec.unpack(sample.payload.to_bytes(), codec.MAX_SMALL_MESSAGE)
+            self._clock = (float(m["t"]), time.time(), 0.0 if m.get("paused") else float(m.get("speed", 1.0)))
+
+    def _on_trace(self, sample: zenoh.Sample) -> None:
+        with contextlib.suppress(Exception):
+            rec = codec.unpack(sample.payload.to_bytes(), codec.MAX_SMALL_MESSAGE)
+            if isinstance(rec, dict):
+                self.tracker.on_trace(rec)
+
+    def _on_rx(self, sample: zenoh.Sample) -> None:
+        try:
+            f = codec.decode_rx(sample.payload.to_bytes())
+        except codec.CodecError:
+            return
+        self.counters["received"] += 1
+        size = len(f.data) + int(self._info.get("header_bytes") or 0)
+        bf = BackendFrame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, size, self.bitrate)
+        for cb in list(self.on_frame):
+            try:
+                cb(bf)
+            except Exception:  # noqa: BLE001 - a listener must not break the others
+                log.exception("%s: frame listener raised", self.id)
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        try:
+            st = codec.decode_status(sample.payload.to_bytes())
+        except codec.CodecError:
+            return
+        if st.tag is None:
+            return
+        with self._lock:
+            hit = self._tags.get(st.tag)
+        if hit is None:
+            return                                  # someone else's frame on this modem
+        tag, dst = hit
+        self.counters["statuses"] += 1
+        if st.event == "queued" and dst != BROADCAST and st.seq is not None:
+            self.tracker.watch(self.address, st.seq, self.id,
+                               lambda ev, reason, t, dist, tag=tag, seq=st.seq: self._emit(
+                                   BackendStatus(tag, ev, reason, t, seq, self._prop(dist))))
+        if st.event == "dropped" and st.seq is not None:
+            self.tracker.forget(self.address, st.seq)
+        self._emit(BackendStatus(tag, st.event, st.reason, st.t, st.seq if st.seq is not None else -1))
+
+    def _prop(self, dist: Any) -> float | None:
+        if dist is None:
+            return None
+        return float(dist) / 1500.0
+
+    def _emit(self, st: BackendStatus) -> None:
+        for cb in list(self.on_status):
+            try:
+                cb(st)
+            except Exception:  # noqa: BLE001
+                log.exception("%s: status listener raised", self.id)
