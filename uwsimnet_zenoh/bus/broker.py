@@ -45,6 +45,9 @@ if TYPE_CHECKING:
 log = logging.getLogger("uwsimnet.bus.broker")
 
 DROP = zenoh.CongestionControl.DROP
+BLOCK = zenoh.CongestionControl.BLOCK
+"""rx frames may be dropped when an app cannot keep up (the simulation never stalls on it); status
+events may not: they are an app's only word on each frame, small and rare, so they wait for room."""
 """rx and status: an application that cannot keep up loses messages (its Zenoh queue is full) rather
 than stalling the simulation for everyone (block would wait, up to seconds, in the engine thread)."""
 
@@ -193,7 +196,7 @@ class Broker:
     def attach(self, m: Modem) -> Endpoint:
         k, s = self.keys, self.session
         ep = Endpoint(m, s.declare_publisher(k.rx(m.id), congestion_control=DROP, express=True),
-                      s.declare_publisher(k.status(m.id), congestion_control=DROP, express=True))
+                      s.declare_publisher(k.status(m.id), congestion_control=BLOCK, express=True))
         self.endpoints[m.id] = ep
         self.foreign.discard(m.id)
         if m.id not in self.real:
@@ -253,7 +256,7 @@ class Broker:
             if pub is not None:
                 pub.put(payload)
             else:
-                self.session.put(self.keys.status(dev), payload)
+                self.session.put(self.keys.status(dev), payload, congestion_control=BLOCK)
         except Exception as e:  # noqa: BLE001 - answering is best effort
             log.debug("status for %s not sent: %s", dev, e)
 
@@ -303,7 +306,7 @@ class Broker:
                 reason = "swapped"
             with contextlib.suppress(Exception):
                 self.session.put(self.keys.status(m.id), codec.encode_status(tag, event, reason, t, frame.seq),
-                                 congestion_control=DROP)
+                                 congestion_control=BLOCK)
             return
         ep = self.serving(m.id)
         if ep is None or ep.modem is not m:
