@@ -164,15 +164,14 @@ class Channel:
         log.append(tx)
 
         own = sender.rx_slot if sender.rx_channel is self else -1
-        if frame.dst == BROADCAST:
+        if frame.dst == BROADCAST:       # every listener is intended: overhearers are among them
             targets = [i for i, m in enumerate(self.listeners) if i != own and m is not None]
+            intended = len(targets)
         else:
             j = self._by_addr.get(frame.dst, -1)
             targets = [j] if j >= 0 and j != own else []
-        intended = len(targets)
-        for j in self._overhearing:
-            if j != own and j not in targets:
-                targets.append(j)
+            intended = len(targets)
+            targets += [i for i in self._overhearing if i != own and i != j]
         if not targets:
             return
 
