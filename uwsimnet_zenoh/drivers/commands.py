@@ -158,9 +158,9 @@ def cmd_driver(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_emulate(args: argparse.Namespace) -> int:
+def _serve(args: argparse.Namespace, what: str, start: Any) -> int:
+    """Run `start(backend) -> (service, where)` on the simulated modem args.id until a signal."""
     from ..cli import UserError
-    from .emulators import EvoLogicsEmulator
     from .zenoh_backend import BackendError, ZenohBackend
 
     _log()
@@ -170,51 +170,48 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             be = ZenohBackend(s, world, args.id)
         except BackendError as e:
             raise UserError(str(e)) from None
-        emu = EvoLogicsEmulator(be, args.host, args.port)
         try:
-            host, port = emu.start()
-            print(f"uwsimnet: emulator evologics ready for {world}/{args.id} on {host}:{port}", flush=True)
-            _wait_for_signal()
+            service, where = start(be)
+            try:
+                print(f"uwsimnet: {what} ready for {world}/{args.id} on {where}", flush=True)
+                _wait_for_signal()
+            finally:
+                service.close()
         finally:
-            emu.close()
             be.close()
     return 0
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    from .emulators import EvoLogicsEmulator
+
+    def start(be: Any) -> tuple[Any, str]:
+        emu = EvoLogicsEmulator(be, args.host, args.port)
+        host, port = emu.start()
+        return emu, f"{host}:{port}"
+
+    return _serve(args, "emulator evologics", start)
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:
     from ..cli import UserError
-    from .zenoh_backend import BackendError, ZenohBackend
 
-    _log()
-    with _session(args) as s:
-        world = _world(s, args)
-        try:
-            be = ZenohBackend(s, world, args.id)
-        except BackendError as e:
-            raise UserError(str(e)) from None
-        try:
-            if args.bridge == "socket":
-                from ..bridges.socket_bridge import SocketBridge
+    def start(be: Any) -> tuple[Any, str]:
+        if args.bridge == "socket":
+            from ..bridges.socket_bridge import SocketBridge
 
-                br: Any = SocketBridge(be, args.host, args.port, args.udp_port).start()
-                where = f"tcp {args.host}:{br.tcp_port}" + (f" udp {br.udp_port}" if br.udp_port else "")
-            else:
-                from ..bridges import posix_mq
-                from ..bridges.mq_bridge import MqBridge
+            br: Any = SocketBridge(be, args.host, args.port, args.udp_port).start()
+            return br, f"tcp {args.host}:{br.tcp_port}" + (f" udp {br.udp_port}" if br.udp_port else "")
+        from ..bridges import posix_mq
+        from ..bridges.mq_bridge import MqBridge
 
-                if not posix_mq.available():
-                    raise UserError("POSIX message queues are not available on this system")
-                br = MqBridge(be, args.dccomms_id or args.id)
-                br.start()
-                where = f"queues {br.tx_name} {br.rx_name}"
-            try:
-                print(f"uwsimnet: bridge {args.bridge} ready for {world}/{args.id} on {where}", flush=True)
-                _wait_for_signal()
-            finally:
-                br.close()
-        finally:
-            be.close()
-    return 0
+        if not posix_mq.available():
+            raise UserError("POSIX message queues are not available on this system")
+        br = MqBridge(be, args.dccomms_id or args.id)
+        br.start()
+        return br, f"queues {br.tx_name} {br.rx_name}"
+
+    return _serve(args, f"bridge {args.bridge}", start)
 
 
 def cmd_vehicles(args: argparse.Namespace) -> int:
