@@ -228,4 +228,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # `python -m uwsimnet_zenoh.cli` runs this file as __main__, a second copy of the module: take main()
+    # from the module proper so that the UserError raised by the subcommands is the one caught there
+    from uwsimnet_zenoh.cli import main as _main
+
+    sys.exit(_main())

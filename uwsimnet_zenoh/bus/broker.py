@@ -44,10 +44,11 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("uwsimnet.bus.broker")
 
-DROP = zenoh.CongestionControl.DROP
 BLOCK = zenoh.CongestionControl.BLOCK
-"""rx frames may be dropped when an app cannot keep up (the simulation never stalls on it); status
-events may not: they are an app's only word on each frame, small and rare, so they wait for room."""
+"""rx frames and status events wait for room rather than being dropped: both come at modem rates (small,
+rare), and with *drop* Zenoh gives up after `wait_before_drop` (1 ms) without a free batch, which a loaded
+machine hits: the app then missed frames the trace says it received (seen in the HIL formation run).
+*Block* waits at most `wait_before_close` (5 s) and then closes the transport to the stuck peer."""
 """rx and status: an application that cannot keep up loses messages (its Zenoh queue is full) rather
 than stalling the simulation for everyone (block would wait, up to seconds, in the engine thread)."""
 
@@ -195,7 +196,7 @@ class Broker:
 
     def attach(self, m: Modem) -> Endpoint:
         k, s = self.keys, self.session
-        ep = Endpoint(m, s.declare_publisher(k.rx(m.id), congestion_control=DROP, express=True),
+        ep = Endpoint(m, s.declare_publisher(k.rx(m.id), congestion_control=BLOCK, express=True),
                       s.declare_publisher(k.status(m.id), congestion_control=BLOCK, express=True))
         self.endpoints[m.id] = ep
         self.foreign.discard(m.id)
@@ -409,6 +410,8 @@ class Broker:
         return {
             "id": m.id, "kind": "sim", "world": self.keys.world, "address": m.address, "vehicle": m.vehicle,
             "tx_channel": m.tx_channel.id, "rx_channel": m.rx_channel.id, "bitrate": m.bitrate,
+            # the tx channel's delay law, the parameters phy.channel.Channel computes delays with
+            "prop": {"min": m.tx_channel.min_prop_s, "per_m": m.tx_channel.prop_s_per_m},
             "header_bytes": m.header_bytes, "max_frame_bytes": cfg.max_frame_bytes,
             "fifo_capacity": m.fifo_cap, "fifo_bytes": m.fifo_bytes, "fifo_frames": len(m.fifo),
             "phy_busy": m.phy_busy, "mac": cfg.mac.name, "pose_known": known,

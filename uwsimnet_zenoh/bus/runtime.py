@@ -135,10 +135,23 @@ def realtime_priority() -> None:
         log.warning("UWSIMNET_RT_PRIORITY=%s ignored: %s", prio, e)
 
 
+class _Stderr(logging.StreamHandler):
+    """A handler on whatever sys.stderr is when it writes (run in-process, e.g. by a test that has
+    swapped and closed stderr since, a handler bound to the old stream would fail)."""
+
+    @property
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _: Any) -> None:
+        pass
+
+
 def _setup_logging() -> None:
     root = logging.getLogger("uwsimnet")
     if not root.handlers:
-        h = logging.StreamHandler(sys.stderr)
+        h = _Stderr()
         h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
         root.addHandler(h)
         root.setLevel(logging.INFO)

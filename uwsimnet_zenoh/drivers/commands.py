@@ -4,6 +4,7 @@ a running broker (docs/drivers.md, docs/bridges.md).
     uwsimnet driver evologics --host H --port P --id X [--world W] [--connect E]   # real S2C modem serves X
     uwsimnet driver serial --device /dev/ttyUSB0 --id X [--address A]             # dccomms serial radio serves X
     uwsimnet emulate evologics --port P --id X [--world W] [--connect E]         # AT server for simulated X
+    uwsimnet emulate serial --id X [--link PATH] [--world W] [--connect E]       # dccomms-framed pty for X
     uwsimnet bridge socket --port P --id X ...  /  uwsimnet bridge mq --id X ...
 
 Each prints one `uwsimnet: ... ready` line on stdout once it serves, and runs until SIGINT/SIGTERM.
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -53,6 +55,10 @@ def add_commands(sub: Any) -> None:
     ee.add_argument("--host", default="127.0.0.1", help="address to listen on")
     common(ee)
     ee.set_defaults(fn=cmd_emulate)
+    es = esub.add_parser("serial", help="pty speaking dccomms DataLinkFrames (transparent serial radio)")
+    es.add_argument("--link", metavar="PATH", help="also make a symlink PATH to the pty (like a udev name)")
+    common(es)
+    es.set_defaults(fn=cmd_emulate)
 
     b = sub.add_parser("bridge", help="a modem for applications that cannot speak Zenoh")
     bsub = b.add_subparsers(dest="bridge", required=True)
@@ -185,12 +191,37 @@ def _serve(args: argparse.Namespace, what: str, start: Any) -> int:
 def cmd_emulate(args: argparse.Namespace) -> int:
     from .emulators import EvoLogicsEmulator
 
+    if args.emulator == "serial":
+        return _emulate_serial(args)
+
     def start(be: Any) -> tuple[Any, str]:
         emu = EvoLogicsEmulator(be, args.host, args.port)
         host, port = emu.start()
         return emu, f"{host}:{port}"
 
     return _serve(args, "emulator evologics", start)
+
+
+def _emulate_serial(args: argparse.Namespace) -> int:
+    """`emulate serial`: a pty whose other end speaks dccomms frames, on simulated modem args.id."""
+    from ..cli import UserError
+    from .emulators import SerialRadioEmulator
+
+    link = args.link
+    if link and os.path.lexists(link) and not os.path.islink(link):     # the emulator replaces old links only
+        raise UserError(f"--link {link}: exists and is not a symlink; not replacing it")
+
+    def start(be: Any) -> tuple[Any, str]:
+        emu = SerialRadioEmulator(be, link=link)
+        try:
+            emu.start()
+        except OSError as e:
+            emu.close()
+            raise UserError(f"emulate serial: cannot create the pty{f' or --link {link}' if link else ''}: {e}"
+                            ) from None
+        return emu, emu.path + (f" link {link}" if link else "")
+
+    return _serve(args, "emulator serial", start)
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:

@@ -376,6 +376,17 @@ class _AtClient(asyncio.Protocol):
             self.transport.close()
 
 
+def _frame_error(ev: dl.FrameEvent) -> str:
+    """One line about a bad frame (the event's repr would dump up to 2 KB of raw bytes)."""
+    if isinstance(ev, dl.BadCrc):
+        return f"bad CRC (frame {ev.src}->{ev.dst}, {ev.length} bytes payload)"
+    if isinstance(ev, dl.BadLength):
+        return f"bad length {ev.length}"
+    if isinstance(ev, dl.Truncated):
+        return f"truncated frame ({len(ev.raw)} of {ev.expected} bytes)"
+    return type(ev).__name__
+
+
 class SerialRadioEmulator:
     """A pty that behaves like a transparent serial radio carrying dccomms DataLinkFrames.
 
@@ -466,7 +477,10 @@ class SerialRadioEmulator:
                 self.backend.send(f.dst, f.payload, hint="dccomms")
             else:
                 self.counters[type(ev).__name__] += 1
-                log.info("%s: %s", self.backend.id, ev)
+                if isinstance(ev, dl.Garbage):       # line noise, notifications: routine on a serial line
+                    log.info("%s: %d bytes of garbage on the pty skipped", self.backend.id, len(ev.data))
+                else:                                # a frame the application meant to send was lost
+                    log.warning("%s: %s on the pty, frame skipped", self.backend.id, _frame_error(ev))
 
     def _bk_frame(self, f: BackendFrame) -> None:
         if not (0 <= f.src <= 255 and 0 <= f.dst <= 255) or len(f.data) > self.max_payload:

@@ -7,7 +7,8 @@
 `send` puts on `modem/<id>/tx` (with an integer tag of its own, mapped back to the caller's tag);
 `modem/<id>/rx` and `/status` come back as `BackendFrame` / `BackendStatus`.  Unicast frames are followed
 to their addressee through `trace/<channel>` (`DeliveryTracker`, keyed by the `seq` that status events
-carry), which yields `delivered` / `lost`.  `now()` is simulation time from the broker's `clock` samples.
+carry), which yields `delivered` / `lost`, with the propagation time over the trace record's distance
+(`prop_time`, the tx channel's law from `info`).  `now()` is simulation time from the broker's `clock` samples.
 
 Callbacks run on Zenoh's threads: emulators only hand them to their own loop.
 """
@@ -32,6 +33,8 @@ from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback
 log = logging.getLogger("uwsimnet.drivers.zenoh")
 
 BROADCAST = 255
+FALLBACK_SOUND_SPEED = 1500.0
+"""m/s: the propagation law assumed when a broker's `info` has no `prop` (brokers before it was added)."""
 
 
 class BackendError(RuntimeError):
@@ -60,6 +63,24 @@ def discover_world(session: zenoh.Session, timeout: float = 2.0) -> str:
     return found.pop()
 
 
+def prop_law(info: dict[str, Any]) -> tuple[float, float, bool]:
+    """(min s, s per m, known) of the tx channel from an `info` reply: delay = min + per_m * distance.
+
+    The broker sends `prop: {min, per_m}` (phy.channel.Channel's own parameters, so a custom channel's
+    minPropTime/propTimeIncPerMeter and an acoustic channel's 1/sound speed).  A reply without it (older
+    broker, or a real driver) falls back to d / 1500 m/s, and `known` is False."""
+    p = info.get("prop")
+    if isinstance(p, dict):
+        try:
+            lo, per_m = float(p["min"]), float(p["per_m"])
+        except (KeyError, TypeError, ValueError):
+            pass
+        else:
+            if lo >= 0.0 and per_m >= 0.0:
+                return lo, per_m, True
+    return 0.0, 1.0 / FALLBACK_SOUND_SPEED, False
+
+
 class ZenohBackend:
     def __init__(self, session: zenoh.Session, world: str, dev: str, *, timeout: float = 5.0,
                  track_delivery: bool = True) -> None:
@@ -77,6 +98,7 @@ class ZenohBackend:
         self._info = info
         self.address = int(info["address"])
         self.bitrate = float(info.get("bitrate") or 0.0) or None
+        self.prop_min, self.prop_per_m, self.prop_known = prop_law(info)
         self.on_frame: list[FrameCallback] = []
         self.on_status: list[StatusCallback] = []
         self.counters = {"sent": 0, "received": 0, "statuses": 0}
@@ -169,10 +191,12 @@ class ZenohBackend:
             self.tracker.forget(self.address, st.seq)
         self._emit(BackendStatus(tag, st.event, st.reason, st.t, st.seq if st.seq is not None else -1))
 
+    def prop_time(self, dist: float) -> float:
+        """One-way propagation time (s) over `dist` m on this modem's tx channel, as the broker's PHY has it."""
+        return self.prop_min + self.prop_per_m * float(dist)
+
     def _prop(self, dist: Any) -> float | None:
-        if dist is None:
-            return None
-        return float(dist) / 1500.0
+        return None if dist is None else self.prop_time(dist)
 
     def _emit(self, st: BackendStatus) -> None:
         for cb in list(self.on_status):

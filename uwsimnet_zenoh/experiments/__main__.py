@@ -1,4 +1,7 @@
-"""`python -m uwsimnet_zenoh.experiments NAME --out DIR`: the paper's experiments with embedded defaults."""
+"""`python -m uwsimnet_zenoh.experiments NAME --out DIR`: the paper's experiments with embedded defaults.
+
+hil-formation runs in real time as separate processes over Zenoh (about 4 minutes); `--virtual` runs
+its virtual-time model alone (a second)."""
 
 from __future__ import annotations
 
@@ -8,18 +11,29 @@ from pathlib import Path
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="uwsimnet-experiments")
+    ap = argparse.ArgumentParser(prog="python -m uwsimnet_zenoh.experiments")
     ap.add_argument("name", choices=["phy-layer", "twinbot", "hil-formation"])
     ap.add_argument("--out", default=None, help="output folder (default out/NAME)")
+    ap.add_argument("--duration", type=float, help="hil-formation: seconds to run (default 240)")
+    ap.add_argument("--virtual", action="store_true", help="hil-formation: the virtual-time model only")
     a = ap.parse_args(argv)
+    if a.name != "hil-formation" and (a.duration is not None or a.virtual):
+        ap.error("--duration and --virtual apply to hil-formation only")
     out = Path(a.out or f"out/{a.name}")
+    kw = {} if a.duration is None else {"duration": a.duration}
     if a.name == "phy-layer":
         from . import phy_layer as experiment
-    elif a.name == "hil-formation":
+    elif a.name == "hil-formation" and a.virtual:
         from . import hil_formation as experiment
+    elif a.name == "hil-formation":
+        from . import hil_realtime as experiment
     else:
         from . import twinbot as experiment
-    experiment.run(out)
+    try:
+        experiment.run(out, **kw)
+    except RuntimeError as e:                    # a child process failed: its log tail says why
+        print(f"uwsimnet-experiments: {e}", file=sys.stderr)
+        return 1
     print((out / "summary.md").read_text())
     print(f"figures and traces in {out}/")
     return 0

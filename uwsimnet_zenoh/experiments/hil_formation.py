@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import json
 import math
-import struct
 import sys
+from collections import Counter
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,7 @@ SIDE = 1.5                  # m: the formation square
 DEPTH = -5.0
 DURATION = 240.0
 MAX_SPEED = 0.3             # m/s (BlueROV, cautious)
+MAX_ACCEL = 0.1             # m/s^2
 TICK = 0.1                  # s: kinematics and pose updates
 LEADER_PERIOD = 2.0         # s: the leader broadcasts its position
 TELEMETRY_PERIOD = 5.0      # s: followers report to the operator
@@ -50,6 +52,7 @@ VEHICLES = {                # name: (address, formation offset from the leader)
 OPERATOR = ("operator", 5, (-10.0, -10.0, 0.0))
 WAYPOINTS = [(0, (0.0, 0.0)), (20, (6.0, 0.0)), (80, (6.0, 6.0)), (140, (0.0, 6.0)), (200, (0.0, 0.0))]
 """(time s, (x, y)) at which the operator switches to that leader waypoint (depth DEPTH)."""
+Vec = tuple[float, float, float]
 
 
 def scene_xml(mac: str) -> str:
@@ -115,7 +118,8 @@ def write_scenes() -> list[Path]:
     return out
 
 
-def _waypoint_at(t: float) -> tuple[float, float, float]:
+def waypoint_at(t: float) -> tuple[float, float, float]:
+    """The operator's current waypoint for the leader at simulation time `t`."""
     cur = WAYPOINTS[0][1]
     for t0, wp in WAYPOINTS:
         if t >= t0:
@@ -123,144 +127,169 @@ def _waypoint_at(t: float) -> tuple[float, float, float]:
     return (cur[0], cur[1], DEPTH)
 
 
+def formation_errors(t: float, poses: dict[str, Vec]) -> dict[str, float]:
+    """Fig. 9's waypoint distance error of each vehicle whose pose is known: the leader's distance to the
+    commanded waypoint; a follower's distance to where it should be given the leader's *actual*
+    position (the leader's position plus its formation offset), as the paper defines it."""
+    out = {}
+    lp = poses.get("leader")
+    if lp is not None:
+        out["leader"] = math.dist(lp, waypoint_at(t))
+    for n, (_, off) in VEHICLES.items():
+        p = poses.get(n)
+        if n != "leader" and p is not None and lp is not None:
+            out[n] = math.dist(p, (lp[0] + off[0], lp[1] + off[1], lp[2] + off[2]))
+    return out
+
+
+def delivery(records: Iterable[dict[str, Any]]) -> dict[str, float]:
+    """Share of the applications' frames delivered, from trace records (data frames only): waypoints
+    (operator -> leader), leader positions (per follower), telemetry (followers -> operator)."""
+    enq: Counter[str] = Counter()
+    rx: Counter[tuple[str, int]] = Counter()
+    for r in records:
+        if r.get("kind") != "data":
+            continue
+        if r.get("ev") == "enq":
+            enq[r["dev"]] += 1
+        elif r.get("ev") == "rx":
+            rx[(r["dev"], r["src"])] += 1
+    leader, op = VEHICLES["leader"][0], OPERATOR[1]
+    followers = [n for n in VEHICLES if n != "leader"]
+    return {
+        "waypoints": rx[("leader-modem", op)] / max(1, enq["operator-modem"]),
+        "leader_positions": sum(rx[(f"{n}-modem", leader)] for n in followers)
+        / max(1, len(followers) * enq["leader-modem"]),
+        "telemetry": sum(rx[("operator-modem", VEHICLES[n][0])] for n in followers)
+        / max(1, sum(enq[f"{n}-modem"] for n in followers)),
+    }
+
+
 def simulate(mac: str, *, duration: float = DURATION, seed: int = 1) -> dict[str, Any]:
+    """Run the experiment on the virtual clock: the apps of hil_apps.py on the scene's modems, the
+    BlueROVs as kinematic vehicles whose poses reach the network at 10 Hz."""
     from ..engine.network import Network
     from ..mobility.kinematic import KinematicVehicle
     from ..scene.load import load_scene_text
+    from .hil_apps import first_due, make_app
 
     scene = load_scene_text(scene_xml(mac))
     net = Network(scene, seed=seed, duration=duration)
+    records: list[dict[str, Any]] = []
+    net.tracer.add(records.append)
     sched = net.sched
-    kin = {n: KinematicVehicle(n, (off[0], off[1], DEPTH), max_speed=MAX_SPEED, max_accel=0.1)
+    kin = {n: KinematicVehicle(n, (off[0], off[1], DEPTH), max_speed=MAX_SPEED, max_accel=MAX_ACCEL)
            for n, (_, off) in VEHICLES.items()}
-    modems = {n: net.modems[f"{n}-modem"] for n in VEHICLES}
-    op_modem = net.modems[f"{OPERATOR[0]}-modem"]
-    counts = {"waypoint_tx": 0, "waypoint_rx": 0, "pos_tx": 0, "pos_rx": 0, "tele_tx": 0, "tele_rx": 0}
-    leader_goal: list[tuple[float, float, float] | None] = [None]
-    follower_goal: dict[str, tuple[float, float, float] | None] = {n: None for n in VEHICLES if n != "leader"}
-    trace: dict[str, list[float]] = {n: [] for n in VEHICLES}
+    errors: dict[str, list[float]] = {n: [] for n in VEHICLES}
     times: list[float] = []
 
-    def pad(b: bytes) -> bytes:
-        return b + bytes(PAYLOAD - len(b))
+    def start(name: str) -> None:
+        app = make_app(name)
+        modem = net.modems[f"{name}-modem"]
 
-    # -- applications ------------------------------------------------------------------------------
-    def operator_tick() -> None:
-        wp = _waypoint_at(sched.now)
-        op_modem.send(VEHICLES["leader"][0], PAYLOAD, data=pad(b"W" + struct.pack("<3f", *wp)))
-        counts["waypoint_tx"] += 1
-        sched.after(OPERATOR_PERIOD, operator_tick)
+        def timer() -> None:
+            pose = kin[name].p if name in kin else None
+            for s in app.on_timer(sched.now, pose):
+                modem.send(s.dst, PAYLOAD, data=s.data)
+            sched.after(app.period, timer)
 
-    def leader_tick() -> None:
-        p = kin["leader"].p
-        modems["leader"].send(255, PAYLOAD, data=pad(b"P" + struct.pack("<3f", *p)))
-        counts["pos_tx"] += 1
-        sched.after(LEADER_PERIOD, leader_tick)
+        def on_rx(_modem: Any, frame: Any, _t: float) -> None:
+            for g in app.on_frame(frame.src, frame.data or b""):
+                kin[name].go([g.waypoint])
 
-    def telemetry_tick(name: str) -> None:
-        p = kin[name].p
-        modems[name].send(OPERATOR[1], PAYLOAD, data=pad(b"T" + struct.pack("<3f", *p)))
-        counts["tele_tx"] += 1
-        sched.after(TELEMETRY_PERIOD, telemetry_tick, name)
+        modem.on_receive.append(on_rx)
+        sched.at(first_due(app, 0.0), timer)
 
-    def on_rx(name: str):
-        def cb(modem: Any, frame: Any, t: float) -> None:
-            data = frame.data or b""
-            if name == "leader" and data[:1] == b"W":
-                counts["waypoint_rx"] += 1
-                wp = struct.unpack("<3f", data[1:13])
-                if leader_goal[0] != wp:
-                    leader_goal[0] = wp
-                    kin["leader"].go([wp])
-            elif name in follower_goal and data[:1] == b"P":
-                counts["pos_rx"] += 1
-                lp = struct.unpack("<3f", data[1:13])
-                off = VEHICLES[name][1]
-                goal = (lp[0] + off[0], lp[1] + off[1], lp[2] + off[2])
-                follower_goal[name] = goal
-                kin[name].go([goal])
-            elif name == OPERATOR[0] and data[:1] == b"T":
-                counts["tele_rx"] += 1
-        return cb
-
-    for n, m in modems.items():
-        m.on_receive.append(on_rx(n))
-    op_modem.on_receive.append(on_rx(OPERATOR[0]))
-
-    # -- kinematics and the error record ----------------------------------------------------------
     def tick() -> None:
-        now = sched.now
         for n, k in kin.items():
             k.step(TICK)
             net.move(n, k.p, k.v)
-        wp = _waypoint_at(now)
-        times.append(now)
-        for n, (_, off) in VEHICLES.items():
-            target = (wp[0] + off[0], wp[1] + off[1], wp[2] + off[2])
-            trace[n].append(math.dist(kin[n].p, target))
-        if now + TICK <= duration:
+        times.append(sched.now)
+        for n, e in formation_errors(sched.now, {n: k.p for n, k in kin.items()}).items():
+            errors[n].append(e)
+        if sched.now + TICK <= duration:
             sched.after(TICK, tick)
 
     for n, k in kin.items():
         net.move(n, k.p, k.v)
     sched.at(0.0, tick)
-    sched.at(0.0, operator_tick)
-    sched.at(0.05, leader_tick)
-    for i, n in enumerate(follower_goal):
-        sched.at(0.3 + 0.25 * i, telemetry_tick, n)
+    for name in (OPERATOR[0], *VEHICLES):
+        start(name)
     net.run(duration)
-    return {"mac": mac, "t": times, "error": trace, "counts": counts, "modem_counters":
-            {m.id: dict(m.counters) for m in [*modems.values(), op_modem]}}
+    return {"mac": mac, "t": times, "error": errors, "delivery": delivery(records)}
 
 
-def _stats(res: dict[str, Any]) -> dict[str, Any]:
+def window(res: dict[str, Any], t0: float) -> dict[str, Any]:
+    """`res` with only its samples at t >= t0."""
+    keep = [i for i, t in enumerate(res["t"]) if t >= t0]
+    return {**res, "t": [res["t"][i] for i in keep],
+            "error": {n: [e[i] for i in keep] for n, e in res["error"].items()}}
+
+
+def stats(res: dict[str, Any]) -> dict[str, Any]:
+    """Per vehicle: mean, max and final error, and the mean over the samples at least 30 s after the
+    last waypoint change (settled)."""
     t = res["t"]
     out: dict[str, Any] = {}
     for n, e in res["error"].items():
+        if not e:
+            continue
         settled = [x for x, tt in zip(e, t, strict=True) if tt - max(t0 for t0, _ in WAYPOINTS if tt >= t0) >= 30]
         out[n] = {"mean": sum(e) / len(e), "max": max(e), "final": e[-1],
                   "settled_mean": (sum(settled) / len(settled)) if settled else None}
-    c = res["counts"]
-    out["delivery"] = {"waypoints": c["waypoint_rx"] / max(1, c["waypoint_tx"]),
-                       "leader_positions": c["pos_rx"] / max(1, 3 * c["pos_tx"]),
-                       "telemetry": c["tele_rx"] / max(1, c["tele_tx"])}
+    out["delivery"] = res["delivery"]
     return out
 
 
-def plot(results: dict[str, dict[str, Any]], path: Path) -> None:
+def write_errors(res: dict[str, Any], path: Path) -> None:
+    """The error series as CSV: t, then one column per vehicle."""
+    with path.open("w") as fh:
+        fh.write("t," + ",".join(VEHICLES) + "\n")
+        for i, t in enumerate(res["t"]):
+            fh.write(f"{t:.3f}," + ",".join(f"{res['error'][n][i]:.4f}" for n in VEHICLES) + "\n")
+
+
+def plot(results: dict[str, dict[str, Any]], path: Path,
+         model: dict[str, dict[str, Any]] | None = None) -> None:
+    """Fig. 9's four panels, one per vehicle, one curve per MAC; `model` (the virtual-time run) is drawn
+    thin and dashed beside a real-time run."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(results), figsize=(6 * len(results), 4), sharey=True)
-    for ax, (mac, res) in zip(axes, results.items(), strict=True):
-        for n, e in res["error"].items():
-            ax.plot(res["t"], e, label=n, lw=1.2)
+    fig, axes = plt.subplots(2, 2, figsize=(12, 7), sharex=True)
+    colors = {"aloha": "tab:blue", "sfama": "tab:red"}
+    for i, (ax, n) in enumerate(zip(axes.flat, VEHICLES, strict=True)):
+        for mac, res in results.items():
+            ax.plot(res["t"], res["error"][n], color=colors[mac], lw=1.2, label=PROTOCOLS[mac])
+        for mac, res in (model or {}).items():
+            ax.plot(res["t"], res["error"][n], color=colors[mac], lw=0.8, ls="--", alpha=0.7,
+                    label=f"{PROTOCOLS[mac]}, virtual-time model")
         for t0, _ in WAYPOINTS[1:]:
             ax.axvline(t0, color="grey", lw=0.6, ls=":")
-        ax.set_title(f"{PROTOCOLS[mac]}: waypoint distance error")
-        ax.set_xlabel("time (s)")
+        off = VEHICLES[n][1]
+        what = "to the commanded waypoint" if n == "leader" else \
+            f"to leader + ({off[0]:g}, {off[1]:g}) m"
+        ax.set_title(f"({'abcd'[i]}) {n}: distance {what}", fontsize=10)
         ax.grid(alpha=0.3)
-    axes[0].set_ylabel("distance to the vehicle's waypoint (m)")
-    axes[0].legend()
+        if i >= 2:
+            ax.set_xlabel("time (s)")
+        if i % 2 == 0:
+            ax.set_ylabel("error (m)")
+    axes.flat[0].legend(fontsize=8)
+    fig.suptitle("Waypoint distance error per AUV, CS-ALOHA and S-FAMA (paper Fig. 9)")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def run(out: Path, *, duration: float = DURATION, figure: Path | None = None) -> dict[str, Any]:
-    out.mkdir(parents=True, exist_ok=True)
-    results = {mac: simulate(mac, duration=duration) for mac in PROTOCOLS}
-    stats = {mac: _stats(r) for mac, r in results.items()}
-    plot(results, out / "fig9-hil-formation.png")
-    if figure is not None:
-        plot(results, figure)
-    lines = ["# HIL formation (virtual time): waypoint distance error, m", "",
-             "| MAC | vehicle | mean | max | mean 30 s after each waypoint change | final |",
+def table(rows: dict[str, dict[str, Any]], title: str) -> list[str]:
+    lines = [f"# {title}", "",
+             "| MAC | vehicle | mean error (m) | max (m) | mean 30 s after each change (m) | final (m) |",
              "|---|---|---|---|---|---|"]
-    for mac, st in stats.items():
+    for mac, st in rows.items():
         for n in VEHICLES:
             s = st[n]
             settled = "-" if s["settled_mean"] is None else f"{s['settled_mean']:.3f}"
@@ -268,15 +297,27 @@ def run(out: Path, *, duration: float = DURATION, figure: Path | None = None) ->
                          f" | {s['final']:.3f} |")
     lines += ["", "| MAC | waypoints delivered | leader positions delivered (per follower) | telemetry delivered |",
               "|---|---|---|---|"]
-    for mac, st in stats.items():
+    for mac, st in rows.items():
         d = st["delivery"]
         lines.append(f"| {PROTOCOLS[mac]} | {d['waypoints']:.1%} | {d['leader_positions']:.1%}"
                      f" | {d['telemetry']:.1%} |")
+    return lines
+
+
+def run(out: Path, *, duration: float = DURATION, figure: Path | None = None) -> dict[str, Any]:
+    """The virtual-time experiment: Fig. 9 and a summary in `out` (about a second)."""
+    out.mkdir(parents=True, exist_ok=True)
+    results = {mac: simulate(mac, duration=duration) for mac in PROTOCOLS}
+    st = {mac: stats(r) for mac, r in results.items()}
+    for path in (out / "fig9-hil-formation.png", figure):
+        if path is not None:
+            plot(results, path)
+    for mac, r in results.items():
+        write_errors(r, out / f"{mac}.errors.csv")
+    lines = table(st, "HIL formation (virtual time): waypoint distance error")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    summary = {"stats": stats, "counts": {m: r["counts"] for m, r in results.items()},
-               "modems": {m: r["modem_counters"] for m, r in results.items()}}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    return stats
+    (out / "summary.json").write_text(json.dumps({"virtual": st}, indent=2))
+    return st
 
 
 if __name__ == "__main__":

@@ -1,0 +1,168 @@
+"""The paper's HIL formation experiment (Sec. 3.3, Fig. 9) as it runs in a lab: separate processes on a
+real-time clock over Zenoh, CS-ALOHA and S-FAMA side by side.
+
+    python -m uwsimnet_zenoh.experiments hil-formation [--duration 240] [--out out/hil-formation]
+
+Per MAC, each in its own process (logs in OUT/logs/):
+
+* the channel broker: `uwsimnet run scenes/paper/hil-formation-<mac>.xml --clock realtime`;
+* the followers' BlueROVs: `uwsimnet vehicles` (kinematic vehicles on `vehicle/<name>/cmd`);
+* the leader BlueROV: `hil_apps robot`, an outside process publishing the tracked pose on `pose/leader`
+  (where the paper had the real robot and its Aruco tracker);
+* five applications (`hil_apps app NAME`), one per robot plus the operator, each on its own modem
+  through uwsimnet_gli.
+
+plus one Zenoh router for all.  This process records every vehicle's pose at 10 Hz of its world's
+simulation time, computes Fig. 9's errors, and compares them with the virtual-time model of the same
+scene (`hil_formation.simulate`), drawn dashed in the figure.  Both worlds run at once (the load is a
+few per cent of a core), so a 240 s experiment takes about 4 minutes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import socket
+import time
+from pathlib import Path
+from typing import Any
+
+from . import hil_formation as h
+from .processes import PY, ProcessError, Processes
+
+TICK = 0.1
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _uwsimnet(*args: str) -> list[str]:
+    return [PY, "-m", "uwsimnet_zenoh.cli", *args]
+
+
+def _apps(*args: str) -> list[str]:
+    return [PY, "-m", "uwsimnet_zenoh.experiments.hil_apps", *args]
+
+
+def start_world(procs: Processes, mac: str, endpoint: str, out: Path, duration: float) -> str:
+    world = f"hil-formation-{mac}"
+    scene = h.SCENES / f"hil-formation-{mac}.xml"
+    procs.start(f"{mac}-broker", _uwsimnet("run", str(scene), "--clock", "realtime", "--connect", endpoint,
+                                           "--duration", f"{duration + 60:g}",
+                                           "--trace", str(out / f"{mac}.trace.jsonl")),
+                ready="uwsimnet: running")
+    followers = [f"--vehicle={n}={off[0]:g},{off[1]:g},{h.DEPTH:g}"
+                 for n, (_, off) in h.VEHICLES.items() if n != "leader"]
+    procs.start(f"{mac}-vehicles", _uwsimnet("vehicles", "--world", world, "--connect", endpoint, *followers,
+                                             "--max-speed", f"{h.MAX_SPEED:g}", "--max-accel", f"{h.MAX_ACCEL:g}"),
+                ready="uwsimnet: vehicles ready")
+    procs.start(f"{mac}-robot", _apps("robot", "--world", world, "--connect", endpoint), ready="ready in")
+    for name in (h.OPERATOR[0], *h.VEHICLES):
+        procs.start(f"{mac}-{name}", _apps("app", name, "--world", world, "--connect", endpoint),
+                    ready="ready in")
+    return world
+
+
+class Recorder:
+    """Every vehicle's latest pose per world (Zenoh callback) and Fig. 9's errors sampled every TICK s of
+    that world's simulation time."""
+
+    def __init__(self, session: Any, worlds: dict[str, Any], until: float) -> None:
+        from uwsimnet_gli._wire import unpack
+
+        self.until = until
+        self.worlds = worlds                                  # mac -> uwsimnet_gli.World
+        self.poses: dict[str, dict[str, h.Vec]] = {mac: {} for mac in worlds}
+        self.res = {mac: {"mac": mac, "t": [], "error": {n: [] for n in h.VEHICLES}} for mac in worlds}
+        self._next = dict.fromkeys(worlds, 0.0)
+        by_world = {w.name: mac for mac, w in worlds.items()}
+
+        def on_pose(sample: Any) -> None:
+            parts = str(sample.key_expr).split("/")          # uwsimnet/<world>/pose/<vehicle>
+            with contextlib.suppress(Exception):
+                p = unpack(sample.payload.to_bytes())["p"]
+                self.poses[by_world[parts[1]]][parts[3]] = (float(p[0]), float(p[1]), float(p[2]))
+
+        self._sub = session.declare_subscriber("uwsimnet/*/pose/*", on_pose)
+
+    def sample(self) -> float:
+        """Record what is due; the least simulation time over the worlds."""
+        least = float("inf")
+        for mac, w in self.worlds.items():
+            t = w.sim_time(timeout=0)
+            if t is None:                                    # no clock sample yet
+                least = 0.0
+                continue
+            least = min(least, t)
+            if t < self._next[mac] or t > self.until:
+                continue
+            errs = h.formation_errors(t, self.poses[mac])
+            if len(errs) < len(h.VEHICLES):
+                continue                                     # not every vehicle has a pose yet
+            r = self.res[mac]
+            r["t"].append(t)
+            for n, e in errs.items():
+                r["error"][n].append(e)
+            self._next[mac] = t + TICK
+        return least
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._sub.undeclare()
+
+
+def _trace(path: Path) -> list[dict[str, Any]]:
+    with path.open() as fh:
+        return [json.loads(line) for line in fh if line.strip()]
+
+
+def run(out: Path, *, duration: float = h.DURATION, figure: Path | None = None) -> dict[str, Any]:
+    """Run both MACs in real time (about `duration` s plus start-up); Fig. 9, summary.md/json in `out`."""
+    from rich.progress import Progress
+    from uwsimnet_gli import World
+
+    out.mkdir(parents=True, exist_ok=True)
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    with Processes(out / "logs") as procs:
+        procs.start("router", _uwsimnet("router", "--listen", endpoint), ready="listening on")
+        worlds = {mac: start_world(procs, mac, endpoint, out, duration) for mac in h.PROTOCOLS}
+        with World(worlds["aloha"], connect=endpoint) as wa, World(worlds["sfama"], connect=endpoint) as ws:
+            rec = Recorder(wa.session, {"aloha": wa, "sfama": ws}, duration)
+            try:
+                with Progress(transient=True) as bar:
+                    task = bar.add_task("HIL formation, real time", total=duration)
+                    while (least := rec.sample()) < duration:
+                        procs.check_alive()
+                        bar.update(task, completed=least)
+                        time.sleep(TICK / 4)
+            finally:
+                rec.close()
+        bad = procs.stop_all()
+    if bad:
+        raise ProcessError("\n".join(bad))
+    results = rec.res
+    for mac, r in results.items():
+        r["delivery"] = h.delivery(_trace(out / f"{mac}.trace.jsonl"))
+        h.write_errors(r, out / f"{mac}.errors.csv")
+    # the model over the same window as the real-time record (which starts once every pose is known)
+    model = {mac: h.window(h.simulate(mac, duration=duration), results[mac]["t"][0]) for mac in h.PROTOCOLS}
+    st = {mac: h.stats(r) for mac, r in results.items()}
+    st_model = {mac: h.stats(r) for mac, r in model.items()}
+    for path in (out / "fig9-hil-formation.png", figure):
+        if path is not None:
+            h.plot(results, path, model=model)
+    lines = h.table(st, f"HIL formation, real time ({duration:g} s, separate processes over Zenoh)")
+    lines += ["", "Virtual-time model of the same scene (dashed in the figure):", "",
+              "| MAC | vehicle | mean error, real time (m) | mean error, model (m) | difference (m) |",
+              "|---|---|---|---|---|"]
+    for mac in h.PROTOCOLS:
+        for n in h.VEHICLES:
+            a, b = st[mac][n]["mean"], st_model[mac][n]["mean"]
+            lines.append(f"| {h.PROTOCOLS[mac]} | {n} | {a:.3f} | {b:.3f} | {a - b:+.3f} |")
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    (out / "summary.json").write_text(json.dumps({"realtime": st, "virtual": st_model, "duration": duration},
+                                                 indent=2))
+    return st
