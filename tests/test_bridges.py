@@ -11,8 +11,8 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import device, scene, vehicle
 
-from tests.conftest import device, scene, vehicle
 from uwsimnet_zenoh.bridges import posix_mq
 from uwsimnet_zenoh.bridges import socket_bridge as sb
 from uwsimnet_zenoh.bridges.mq_bridge import GliQueueClient, MqBridge

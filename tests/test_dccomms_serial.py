@@ -8,8 +8,8 @@ import random
 import time
 
 import pytest
+from conftest import device, scene, vehicle
 
-from tests.conftest import device, scene, vehicle
 from uwsimnet_zenoh.drivers import dccomms_framing as dl
 from uwsimnet_zenoh.drivers.emulators import SerialRadioEmulator
 from uwsimnet_zenoh.drivers.serial_radio import SerialRadioDriver, open_raw_tty, set_raw

@@ -13,8 +13,8 @@ import threading
 import time
 
 import pytest
+from conftest import device, scene, vehicle
 
-from tests.conftest import device, scene, vehicle
 from uwsimnet_zenoh.drivers import evologics_at as at
 from uwsimnet_zenoh.drivers.emulators import BUSY_IM, EvoLogicsEmulator
 from uwsimnet_zenoh.drivers.evologics import EvoLogicsDriver

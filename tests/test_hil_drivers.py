@@ -78,7 +78,8 @@ def test_driver_to_emulator_through_the_simulated_channel(parts):
 def test_serial_driver_serves_a_modem_id(tmp_path: Path):
     """`uwsimnet driver serial` on a pty whose other end is a serial-radio emulator of another (in-process)
     simulation: frames put on b-m's keys go out on that radio link, and what it receives comes back."""
-    from tests.conftest import device, scene, vehicle
+    from conftest import device, scene, vehicle
+
     from uwsimnet_zenoh.drivers.emulators import SerialRadioEmulator
     from uwsimnet_zenoh.drivers.sim_backend import SimWorld
     from uwsimnet_zenoh.scene.model import Channel

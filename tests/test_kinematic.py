@@ -99,3 +99,49 @@ def test_vehicles_command_moves_a_broker_vehicle(tmp_path: Path):
             except AssertionError as e:
                 errors.append(str(e))
         assert not errors, errors
+
+
+def test_vehicles_follow_the_world_clock_speed_and_pause(tmp_path: Path):
+    """`uwsimnet vehicles` steps on simulation time: at --speed 4 a vehicle covers 4 s of motion per wall
+    second, and while the world is paused it does not move at all."""
+    scene = tmp_path / "k.xml"
+    scene.write_text(scene_xml(world=WORLD, vehicles="".join([
+        vehicle_xml("base", (0, 0, 0), device_xml("base-m", 1)),
+        vehicle_xml("k", None, device_xml("k-m", 2)),
+    ])))
+    started: list[Proc] = []
+    try:
+        broker = Broker(scene, tmp_path / "trace.jsonl", "--speed", "4")
+        started.append(broker)
+        veh = Proc([*UWSIMNET, "vehicles", "--vehicle", "k=0,0,0", "--max-speed", "1", "--rate", "20",
+                    "--connect", broker.endpoint])
+        started.append(veh)
+        veh.expect("uwsimnet: vehicles ready in kine: k", 20)
+        with World(WORLD, connect=broker.endpoint) as w:
+            def x() -> float:
+                p = w.control("state")["vehicles"]["k"]["p"]
+                return math.nan if p is None else p[0]
+
+            w.session.put(f"uwsimnet/{WORLD}/vehicle/k/cmd", msgpack.packb({"v": [1, 0, 0]}))    # 1 m/s
+            time.sleep(0.3)
+            x0, t0 = x(), w.sim_time()
+            time.sleep(1.0)
+            x1, t1 = x(), w.sim_time()
+            assert t1 - t0 == pytest.approx(4.0, abs=0.4)            # the world runs 4x
+            assert x1 - x0 == pytest.approx(t1 - t0, abs=0.4)        # 1 m per simulated second
+            w.control("pause")
+            time.sleep(0.3)
+            xp = x()
+            time.sleep(1.0)
+            assert x() == pytest.approx(xp, abs=1e-6)               # paused: the vehicle stands still
+            w.control("resume")
+            time.sleep(1.0)
+            assert x() - xp == pytest.approx(4.0, abs=0.6)
+    finally:
+        errors = []
+        for p in reversed(started):
+            try:
+                p.stop()
+            except AssertionError as e:
+                errors.append(str(e))
+        assert not errors, errors

@@ -9,8 +9,8 @@ import threading
 import time
 
 import pytest
+from conftest import device, scene, vehicle
 
-from tests.conftest import device, scene, vehicle
 from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.engine.realtime import RealtimeClock, run_for
 from uwsimnet_zenoh.engine.scheduler import Scheduler

@@ -175,6 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene")
     r.add_argument("--clock", choices=["virtual", "realtime"])
     r.add_argument("--duration", type=float, help="simulated seconds (default: the scene's)")
+    r.add_argument("--speed", type=float, default=1.0,
+                   help="realtime: simulated seconds per wall second (default 1; >1 for runs without hardware)")
     r.add_argument("--seed", type=int, help="random seed (default: the scene's)")
     r.add_argument("--trace", help="JSONL trace file to write")
     r.add_argument("--world", help="Zenoh world name (default: the scene's name)")

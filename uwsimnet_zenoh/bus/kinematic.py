@@ -1,6 +1,8 @@
-"""Kinematic vehicles on Zenoh: `mobility.kinematic.KinematicVehicle`s stepped on wall time, their poses
-published on `uwsimnet/<world>/pose/<name>` (with velocity, so the broker extrapolates between samples),
-commands read from `uwsimnet/<world>/vehicle/<name>/cmd` (msgpack maps, see mobility/kinematic.py).
+"""Kinematic vehicles on Zenoh: `mobility.kinematic.KinematicVehicle`s stepped on the world's simulation
+time (its `clock` samples: they stand still while the world is paused and follow `uwsimnet run
+--speed`), their poses published `rate_hz` times per wall second on `uwsimnet/<world>/pose/<name>`
+(with velocity, so the broker extrapolates between samples, and `t`, the simulation time), commands
+read from `uwsimnet/<world>/vehicle/<name>/cmd` (msgpack maps, see mobility/kinematic.py).
 
     uwsimnet vehicles --vehicle leader=0,0,-5 --vehicle f1=-1.5,0,-5 --max-speed 0.5 --world W
 
@@ -24,6 +26,7 @@ import zenoh
 
 from ..mobility.kinematic import CommandError, KinematicVehicle
 from . import codec
+from .clock import WorldClock
 from .keys import Keys, check_chunk
 
 log = logging.getLogger("uwsimnet.bus.kinematic")
@@ -45,12 +48,13 @@ class KinematicRunner:
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.clock = WorldClock(session, self.keys)
         self._pubs = {n: session.declare_publisher(self.keys.pose(n)) for n in self.vehicles}
         self._sub = session.declare_subscriber(cmd_key(world), self._on_cmd)
         self._lock = threading.Lock()
 
     def start(self) -> KinematicRunner:
-        self._publish(0.0)
+        self._publish(self.clock.now())
         self._thread = threading.Thread(target=self._loop, name="uwsimnet-kinematic", daemon=True)
         self._thread.start()
         return self
@@ -59,6 +63,7 @@ class KinematicRunner:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(5)
+        self.clock.close()
         for e in (self._sub, *self._pubs.values()):
             with contextlib.suppress(Exception):
                 e.undeclare()
@@ -91,10 +96,10 @@ class KinematicRunner:
             log.warning("%s: command ignored: %s", name, e)
 
     def _loop(self) -> None:
-        last = time.monotonic()
-        nxt = last + self.period
+        last = self.clock.now()                          # simulation time of the last step (None: no clock yet)
+        nxt = time.monotonic() + self.period
         while not self._stop.wait(max(0.0, nxt - time.monotonic())):
-            now = time.monotonic()
+            now = self.clock.now()
             with self._lock:
                 while True:
                     try:
@@ -102,19 +107,20 @@ class KinematicRunner:
                     except queue.Empty:
                         break
                     self._apply(key, raw)
-                dt = now - last
-                for v in self.vehicles.values():
-                    v.step(dt)
-            last = now
+                if now is not None and last is not None and now > last:
+                    for v in self.vehicles.values():
+                        v.step(now - last)
+            if now is not None:
+                last = now
             self._publish(now)
             nxt += self.period
-            if nxt < now:
-                nxt = now + self.period
+            if nxt < time.monotonic():
+                nxt = time.monotonic() + self.period
 
-    def _publish(self, now: float) -> None:
+    def _publish(self, now: float | None) -> None:
         with self._lock:
-            out = [(n, v.p, v.v, v.t) for n, v in self.vehicles.items()]
-        for n, p, vel, t in out:
+            out = [(n, v.p, v.v) for n, v in self.vehicles.items()]
+        for n, p, vel in out:
             with contextlib.suppress(Exception):
-                self._pubs[n].put(codec.encode_pose(p, v=vel, t=t))
+                self._pubs[n].put(codec.encode_pose(p, v=vel, t=now))
                 self.counters["poses"] += 1

@@ -163,6 +163,9 @@ def run_realtime(scene: Scene, args: Any) -> int:
     duration = args.duration if args.duration is not None else scene.simulation.duration
     if duration is not None and not duration > 0:
         raise _user_error("--duration must be > 0")
+    speed = getattr(args, "speed", 1.0)
+    if not (math.isfinite(speed) and speed > 0):
+        raise _user_error("--speed must be a number > 0")
     channels = parse_channels(getattr(args, "channels", None), scene)
     external = parse_external(getattr(args, "external_flows", None), scene)
     hosted, foreign = select_channels(scene, channels)
@@ -211,7 +214,8 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
         if f.name not in external:
             net.flows.append(FlowSource(f, net.modems[f.src], net.sched, net.seeds("flow", f.name),
                                         net.duration))
-    clock = RealtimeClock(net.sched, until=duration, spin=float(os.environ.get("UWSIMNET_SPIN") or 0.001))
+    clock = RealtimeClock(net.sched, until=duration, speed=getattr(args, "speed", 1.0),
+                          spin=float(os.environ.get("UWSIMNET_SPIN") or 0.001))
     try:
         conf = (make_config("client", connect=connect, connect_timeout_ms=3000, config_file=zconf)
                 if mode == "client" else make_config("router", listen=listen, config_file=zconf))
@@ -272,7 +276,8 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                   " clock, control/<op>", flush=True)
             clock.start()
             until = f"for {duration:g} s" if duration is not None else "until Ctrl-C"
-            print(f"uwsimnet: running {until} (realtime clock); trace {trace if not tmp else '(summary only)'}",
+            pace = "realtime clock" if clock.speed == 1.0 else f"realtime clock x{clock.speed:g}"
+            print(f"uwsimnet: running {until} ({pace}); trace {trace if not tmp else '(summary only)'}",
                   flush=True)
             while not stop.event.is_set() and not clock.done.is_set():
                 stop.event.wait(0.2)

@@ -16,11 +16,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="output folder (default out/NAME)")
     ap.add_argument("--duration", type=float, help="hil-formation: seconds to run (default 240)")
     ap.add_argument("--virtual", action="store_true", help="hil-formation: the virtual-time model only")
+    ap.add_argument("--speed", type=float, help="hil-formation: simulated seconds per wall second (default 1)")
     a = ap.parse_args(argv)
-    if a.name != "hil-formation" and (a.duration is not None or a.virtual):
-        ap.error("--duration and --virtual apply to hil-formation only")
+    if a.name != "hil-formation" and (a.duration is not None or a.virtual or a.speed is not None):
+        ap.error("--duration, --speed and --virtual apply to hil-formation only")
+    if a.speed is not None and (a.virtual or not a.speed > 0):
+        ap.error("--speed: a number > 0, for the real-time run")
     out = Path(a.out or f"out/{a.name}")
-    kw = {} if a.duration is None else {"duration": a.duration}
+    kw: dict[str, float] = {} if a.duration is None else {"duration": a.duration}
+    if a.speed is not None:
+        kw["speed"] = a.speed
     if a.name == "phy-layer":
         from . import phy_layer as experiment
     elif a.name == "hil-formation" and a.virtual:

@@ -33,7 +33,6 @@ import signal
 import struct
 import sys
 import threading
-import time
 from dataclasses import dataclass, field
 
 from .hil_formation import (
@@ -222,8 +221,9 @@ def run_app(name: str, world_name: str, connect: str) -> None:
 
 def run_robot(world_name: str, connect: str, *, rate_hz: float = 15.0, noise: float = 0.02,
               seed: int = 1) -> None:
-    """The leader's stand-in: a kinematic BlueROV obeying `vehicle/leader/cmd`, its tracked pose (Gaussian
-    noise of `noise` m per axis, `rate_hz` samples/s like a camera tracker) published on `pose/leader`."""
+    """The leader's stand-in: a kinematic BlueROV obeying `vehicle/leader/cmd` (stepped on the world's
+    simulation time, like `uwsimnet vehicles`), its tracked pose (Gaussian noise of `noise` m per axis,
+    `rate_hz` samples per wall second like a camera tracker) published on `pose/leader`."""
     from uwsimnet_gli import World
     from uwsimnet_gli._wire import unpack
 
@@ -241,16 +241,17 @@ def run_robot(world_name: str, connect: str, *, rate_hz: float = 15.0, noise: fl
 
     with World(world_name, connect=connect) as w:
         sub = w.session.declare_subscriber(f"uwsimnet/{w.name}/vehicle/leader/cmd", on_cmd)
-        period = 1.0 / rate_hz
-        last = time.monotonic()
+        if w.sim_time(timeout=10.0) is None:
+            raise SystemExit(f"hil_apps: no clock from world {world_name!r}")
+        last = w.sim_time() or 0.0
         print(f"hil_apps: robot leader ready in {w.name}", flush=True)
-        while not stop.wait(period):
-            now = time.monotonic()
+        while not stop.wait(1.0 / rate_hz):                  # the camera's rate, on the wall
+            now = w.sim_time() or last
             with lock:
-                v.step(now - last)
+                v.step(now - last)                           # the vehicle moves in simulation time
                 p, vel = v.p, v.v
             last = now
-            w.publish_pose("leader", [c + rng.gauss(0.0, noise) for c in p], v=vel)
+            w.publish_pose("leader", [c + rng.gauss(0.0, noise) for c in p], v=vel, t=now)
         sub.undeclare()
 
 
@@ -260,9 +261,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("name", nargs="?", help="app: operator, leader or followerN")
     ap.add_argument("--world", required=True)
     ap.add_argument("--connect", default="tcp/127.0.0.1:7447")
+    ap.add_argument("--rate", type=float, default=15.0, help="robot: tracked poses per wall second")
     a = ap.parse_args(argv)
     if a.role == "robot":
-        run_robot(a.world, a.connect)
+        run_robot(a.world, a.connect, rate_hz=a.rate)
     else:
         try:
             make_app(a.name or "")

@@ -47,19 +47,21 @@ def _apps(*args: str) -> list[str]:
     return [PY, "-m", "uwsimnet_zenoh.experiments.hil_apps", *args]
 
 
-def start_world(procs: Processes, mac: str, endpoint: str, out: Path, duration: float) -> str:
+def start_world(procs: Processes, mac: str, endpoint: str, out: Path, duration: float, speed: float) -> str:
     world = f"hil-formation-{mac}"
     scene = h.SCENES / f"hil-formation-{mac}.xml"
     procs.start(f"{mac}-broker", _uwsimnet("run", str(scene), "--clock", "realtime", "--connect", endpoint,
-                                           "--duration", f"{duration + 60:g}",
+                                           "--duration", f"{duration + 60:g}", "--speed", f"{speed:g}",
                                            "--trace", str(out / f"{mac}.trace.jsonl")),
                 ready="uwsimnet: running")
     followers = [f"--vehicle={n}={off[0]:g},{off[1]:g},{h.DEPTH:g}"
                  for n, (_, off) in h.VEHICLES.items() if n != "leader"]
     procs.start(f"{mac}-vehicles", _uwsimnet("vehicles", "--world", world, "--connect", endpoint, *followers,
-                                             "--max-speed", f"{h.MAX_SPEED:g}", "--max-accel", f"{h.MAX_ACCEL:g}"),
+                                             "--max-speed", f"{h.MAX_SPEED:g}", "--max-accel", f"{h.MAX_ACCEL:g}",
+                                             "--rate", f"{10 * speed:g}"),      # 10 poses per simulated second
                 ready="uwsimnet: vehicles ready")
-    procs.start(f"{mac}-robot", _apps("robot", "--world", world, "--connect", endpoint), ready="ready in")
+    procs.start(f"{mac}-robot", _apps("robot", "--world", world, "--connect", endpoint, "--rate", f"{15 * speed:g}"),
+                ready="ready in")
     for name in (h.OPERATOR[0], *h.VEHICLES):
         procs.start(f"{mac}-{name}", _apps("app", name, "--world", world, "--connect", endpoint),
                     ready="ready in")
@@ -119,8 +121,9 @@ def _trace(path: Path) -> list[dict[str, Any]]:
         return [json.loads(line) for line in fh if line.strip()]
 
 
-def run(out: Path, *, duration: float = h.DURATION, figure: Path | None = None) -> dict[str, Any]:
-    """Run both MACs in real time (about `duration` s plus start-up); Fig. 9, summary.md/json in `out`."""
+def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: Path | None = None) -> dict[str, Any]:
+    """Run both MACs in real time (about `duration` / `speed` s plus start-up; `speed` > 1 is for runs
+    without hardware: every process follows the worlds' clocks); Fig. 9, summary.md/json in `out`."""
     from rich.progress import Progress
     from uwsimnet_gli import World
 
@@ -128,7 +131,7 @@ def run(out: Path, *, duration: float = h.DURATION, figure: Path | None = None) 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     with Processes(out / "logs") as procs:
         procs.start("router", _uwsimnet("router", "--listen", endpoint), ready="listening on")
-        worlds = {mac: start_world(procs, mac, endpoint, out, duration) for mac in h.PROTOCOLS}
+        worlds = {mac: start_world(procs, mac, endpoint, out, duration, speed) for mac in h.PROTOCOLS}
         with World(worlds["aloha"], connect=endpoint) as wa, World(worlds["sfama"], connect=endpoint) as ws:
             rec = Recorder(wa.session, {"aloha": wa, "sfama": ws}, duration)
             try:
@@ -137,7 +140,7 @@ def run(out: Path, *, duration: float = h.DURATION, figure: Path | None = None) 
                     while (least := rec.sample()) < duration:
                         procs.check_alive()
                         bar.update(task, completed=least)
-                        time.sleep(TICK / 4)
+                        time.sleep(TICK / 4 / speed)
             finally:
                 rec.close()
         bad = procs.stop_all()
@@ -154,7 +157,8 @@ def run(out: Path, *, duration: float = h.DURATION, figure: Path | None = None) 
     for path in (out / "fig9-hil-formation.png", figure):
         if path is not None:
             h.plot(results, path, model=model)
-    lines = h.table(st, f"HIL formation, real time ({duration:g} s, separate processes over Zenoh)")
+    pace = "real time" if speed == 1.0 else f"real time x{speed:g}"
+    lines = h.table(st, f"HIL formation, {pace} ({duration:g} s, separate processes over Zenoh)")
     lines += ["", "Virtual-time model of the same scene (dashed in the figure):", "",
               "| MAC | vehicle | mean error, real time (m) | mean error, model (m) | difference (m) |",
               "|---|---|---|---|---|"]
@@ -163,6 +167,6 @@ def run(out: Path, *, duration: float = h.DURATION, figure: Path | None = None) 
             a, b = st[mac][n]["mean"], st_model[mac][n]["mean"]
             lines.append(f"| {h.PROTOCOLS[mac]} | {n} | {a:.3f} | {b:.3f} | {a - b:+.3f} |")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    (out / "summary.json").write_text(json.dumps({"realtime": st, "virtual": st_model, "duration": duration},
-                                                 indent=2))
+    summary = {"realtime": st, "virtual": st_model, "duration": duration, "speed": speed}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return st
