@@ -49,9 +49,13 @@ SCENE = f"""<?xml version="1.0"?>
     <minPropTime>{MIN_MS}</minPropTime></CustomCommsChannel>
   <AcousticCommsChannel><id>1</id><temperature>{T}</temperature><salinity>{S}</salinity><depth>{DEPTH}</depth>
   </AcousticCommsChannel>
-  <vehicle><name>a</name><position>0 0 0</position>{custom_dev("c-a", 1)}{acoustic_dev("k-a", 1)}</vehicle>
+  <CustomCommsChannel><id>2</id><propTimeIncPerMeter>2</propTimeIncPerMeter>
+    <minPropTime>7</minPropTime></CustomCommsChannel>
+  <vehicle><name>a</name><position>0 0 0</position>{custom_dev("c-a", 1)}{acoustic_dev("k-a", 1)}
+    {custom_dev("m-a", 3).replace("<rxChannelId>0</rxChannelId>", "<rxChannelId>2</rxChannelId>")}</vehicle>
   <vehicle><name>b</name><position>{B_POS[0]} {B_POS[1]} {B_POS[2]}</position>{custom_dev("c-b", 2)}
-    {acoustic_dev("k-b", 2)}</vehicle>
+    {acoustic_dev("k-b", 2)}
+    {custom_dev("m-b", 4).replace("<txChannelId>0</txChannelId>", "<txChannelId>2</txChannelId>")}</vehicle>
 </UWSimScene>"""
 
 # (tx modem, its channel id, the delay law by formula)
@@ -105,6 +109,27 @@ def test_zenoh_backend_propagation_is_the_channels(session, phy, dev, cid, formu
         assert st.prop_time is not None and abs(st.prop_time - ch.max_prop_delay(DIST)) < 1e-9
     finally:
         be.close()
+
+
+def test_received_frames_use_the_rx_channels_law(session, phy):
+    """m-a sends on channel 0 and listens on channel 2 (7 ms + 2 ms/m): a frame it receives crossed
+    channel 2, and that is the propagation time its backend reports, not the tx channel's."""
+    ch2 = phy.channels[2]
+    info = query_info(session, Keys(WORLD), "m-a")
+    assert info["rx_prop"] == {"min": ch2.min_prop_s, "per_m": ch2.prop_s_per_m}
+    assert info["prop"] == {"min": phy.channels[0].min_prop_s, "per_m": phy.channels[0].prop_s_per_m}
+    rx, tx = ZenohBackend(session, WORLD, "m-a"), ZenohBackend(session, WORLD, "m-b")
+    try:
+        got: queue.Queue = queue.Queue()
+        rx.on_frame.append(got.put)
+        tx.send(3, b"over channel 2")
+        f = got.get(timeout=10)
+        assert f.distance == pytest.approx(DIST, abs=1e-6)
+        assert abs(f.prop_time - (7e-3 + 2e-3 * DIST)) < 1e-9
+        assert abs(f.prop_time - ch2.max_prop_delay(DIST)) < 1e-9
+    finally:
+        rx.close()
+        tx.close()
 
 
 def test_a_broker_without_prop_falls_back_to_1500_m_per_s():

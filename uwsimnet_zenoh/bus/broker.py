@@ -297,7 +297,7 @@ class Broker:
         if ep is None:
             return
         data = frame.data if frame.data is not None else bytes(frame.payload)
-        ep.rx_pub.put(codec.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t))
+        ep.rx_pub.put(codec.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, m.rx_dist))
 
     def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
         tag = frame.tag if isinstance(frame.tag, int) and not isinstance(frame.tag, bool) else None
@@ -412,6 +412,7 @@ class Broker:
             "tx_channel": m.tx_channel.id, "rx_channel": m.rx_channel.id, "bitrate": m.bitrate,
             # the tx channel's delay law, the parameters phy.channel.Channel computes delays with
             "prop": {"min": m.tx_channel.min_prop_s, "per_m": m.tx_channel.prop_s_per_m},
+            "rx_prop": {"min": m.rx_channel.min_prop_s, "per_m": m.rx_channel.prop_s_per_m},
             "header_bytes": m.header_bytes, "max_frame_bytes": cfg.max_frame_bytes,
             "fifo_capacity": m.fifo_cap, "fifo_bytes": m.fifo_bytes, "fifo_frames": len(m.fifo),
             "phy_busy": m.phy_busy, "mac": cfg.mac.name, "pose_known": known,

@@ -126,8 +126,12 @@ def decode_tx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> TxRequest:
 
 
 # -- rx: modem -> app ---------------------------------------------------------------------------
-def encode_rx(src: int, dst: int, data: bytes, seq: int, t_tx: float, t_rx: float) -> bytes:
-    return pack({"src": src, "dst": dst, "data": data, "seq": seq, "t_tx": float(t_tx), "t_rx": float(t_rx)})
+def encode_rx(src: int, dst: int, data: bytes, seq: int, t_tx: float, t_rx: float,
+              dist: float | None = None) -> bytes:
+    m: dict[str, Any] = {"src": src, "dst": dst, "data": data, "seq": seq, "t_tx": float(t_tx), "t_rx": float(t_rx)}
+    if dist is not None:
+        m["dist"] = float(dist)
+    return pack(m)
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,6 +142,8 @@ class RxFrame:
     seq: int
     t_tx: float
     t_rx: float
+    dist: float | None = None
+    """m between transmitter and receiver at transmission start (the trace's rx `dist`); None: not sent."""
 
 
 def decode_rx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> RxFrame:
@@ -150,7 +156,11 @@ def decode_rx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> RxFrame:
             raise CodecError("invalid", f"{k!r} must be a number")
     if not isinstance(m.get("data"), bytes):
         raise CodecError("invalid", "'data' must be bin")
-    return RxFrame(m["src"], m["dst"], m["data"], m["seq"], float(m["t_tx"]), float(m["t_rx"]))
+    dist = m.get("dist")
+    if dist is not None and not (_is_num(dist) and dist >= 0):
+        raise CodecError("invalid", "'dist' must be a number >= 0 or absent")
+    return RxFrame(m["src"], m["dst"], m["data"], m["seq"], float(m["t_tx"]), float(m["t_rx"]),
+                   None if dist is None else float(dist))
 
 
 # -- status: modem -> app -----------------------------------------------------------------------

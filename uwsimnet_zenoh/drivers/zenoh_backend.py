@@ -99,6 +99,8 @@ class ZenohBackend:
         self.address = int(info["address"])
         self.bitrate = float(info.get("bitrate") or 0.0) or None
         self.prop_min, self.prop_per_m, self.prop_known = prop_law(info)
+        # received frames crossed the rx channel (another law when rxChannelId differs)
+        self._rx_law = prop_law({"prop": info.get("rx_prop", info.get("prop"))})
         self.on_frame: list[FrameCallback] = []
         self.on_status: list[StatusCallback] = []
         self.counters = {"sent": 0, "received": 0, "statuses": 0}
@@ -163,7 +165,9 @@ class ZenohBackend:
             return
         self.counters["received"] += 1
         size = len(f.data) + int(self._info.get("header_bytes") or 0)
-        bf = BackendFrame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, size, self.bitrate)
+        # the broker's distance (older brokers: none, and link_metrics falls back to t_rx - t_tx)
+        bf = BackendFrame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, size, self.bitrate,
+                          f.dist, None if f.dist is None else self._rx_law[0] + self._rx_law[1] * f.dist)
         for cb in list(self.on_frame):
             try:
                 cb(bf)

@@ -55,6 +55,9 @@ class Modem:
         self._seq = 0
         self._last_delivery = 0.0
         self._rx_dist = 0.0
+        self.rx_dist = 0.0
+        """Distance (m, at transmission start) of the frame being handed to `on_receive`: what its trace
+        `rx` record carries; valid during the callbacks."""
         self.loss_random = random.Random(seeds("loss", self.id)).random
         self._jitter = random.Random(seeds("jitter", self.id))
         self.random = random.Random(seeds("mac", self.id)).random
@@ -162,6 +165,7 @@ class Modem:
     def _deliver(self, frame: Frame, dist: float) -> None:
         now = self.sched.now
         self.counters["rx"] += 1
+        self.rx_dist = dist
         self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist)
         for cb in self.on_receive:
             cb(self, frame, now)

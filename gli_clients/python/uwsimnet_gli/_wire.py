@@ -51,7 +51,9 @@ def unpack(raw: bytes) -> Any:
 class Frame:
     """A frame delivered by a modem: addresses, payload, sequence number of the sender, and the
     simulation times of its first bit on air (`t_tx`) and of its delivery (`t_rx`).  `modem` is the
-    dccommsId that received it; `wall` the time.time() at which this process got it."""
+    dccommsId that received it; `wall` the time.time() at which this process got it.  `dist` is the
+    distance (m) between transmitter and receiver when the frame left, as the simulator's channel had it
+    (None from a broker that does not send it)."""
 
     src: int
     dst: int
@@ -61,6 +63,7 @@ class Frame:
     t_rx: float
     modem: str = ""
     wall: float = field(default=0.0, compare=False)
+    dist: float | None = None
 
 
 @dataclass(frozen=True)
@@ -105,7 +108,11 @@ def decode_rx(raw: bytes, modem: str = "", wall: float = 0.0) -> Frame | None:
     if (not isinstance(m, dict) or not all(_int(m.get(k)) for k in ("src", "dst", "seq"))
             or not isinstance(m.get("data"), bytes) or not _num(m.get("t_tx")) or not _num(m.get("t_rx"))):
         return None
-    return Frame(m["src"], m["dst"], m["data"], m["seq"], float(m["t_tx"]), float(m["t_rx"]), modem, wall)
+    dist = m.get("dist")
+    if dist is not None and not (_num(dist) and dist >= 0):
+        return None
+    return Frame(m["src"], m["dst"], m["data"], m["seq"], float(m["t_tx"]), float(m["t_rx"]), modem, wall,
+                 None if dist is None else float(dist))
 
 
 def decode_status(raw: bytes, modem: str = "") -> Status | None:
