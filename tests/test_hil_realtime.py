@@ -77,3 +77,31 @@ def test_one_command_runs_the_hil_experiment_as_processes(tmp_path: Path):
             assert abs(rt[n]["mean"] - model[n]["mean"]) < 0.3, (mac, n, rt[n], model[n])
             if n != "leader":
                 assert rt[n]["max"] < 2.5, (mac, n, rt[n])   # formation kept: within ~one leg update
+
+
+def test_sigterm_stops_every_process(tmp_path: Path):
+    """SIGTERM (or Ctrl-C) during the run stops the children too: the command exits 130 and, last of
+    all, the router no longer listens."""
+    import re
+    import signal
+    import socket
+    import time
+
+    out = tmp_path / "hil"
+    p = subprocess.Popen([sys.executable, "-m", "uwsimnet_zenoh.experiments", "hil-formation", "--duration", "60",
+                          "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        last = out / "logs" / "sfama-follower3.log"              # the last process started
+        deadline = time.monotonic() + 60
+        while not (last.exists() and "ready" in last.read_text()):
+            assert p.poll() is None and time.monotonic() < deadline, p.communicate()
+            time.sleep(0.1)
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130 and "interrupted" in err, err
+    port = int(re.search(r"tcp/127\.0\.0\.1:(\d+)", (out / "logs" / "router.log").read_text()).group(1))
+    with socket.socket() as s:
+        assert s.connect_ex(("127.0.0.1", port)) != 0                # the router is gone

@@ -6,6 +6,7 @@ its virtual-time model alone (a second)."""
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
 
@@ -20,6 +21,8 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.name != "hil-formation" and (a.duration is not None or a.virtual or a.speed is not None):
         ap.error("--duration, --speed and --virtual apply to hil-formation only")
+    if a.duration is not None and not 0 < a.duration < 1e6:
+        ap.error("--duration: seconds, a number > 0")
     if a.speed is not None and (a.virtual or not a.speed > 0):
         ap.error("--speed: a number > 0, for the real-time run")
     out = Path(a.out or f"out/{a.name}")
@@ -34,11 +37,18 @@ def main(argv: list[str] | None = None) -> int:
         from . import hil_realtime as experiment
     else:
         from . import twinbot as experiment
+    def interrupt(*_: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)     # like Ctrl-C: the child processes are stopped, not orphaned
     try:
         experiment.run(out, **kw)
     except RuntimeError as e:                    # a child process failed: its log tail says why
         print(f"uwsimnet-experiments: {e}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:                    # child processes were stopped on the way out
+        print("uwsimnet-experiments: interrupted", file=sys.stderr)
+        return 130
     print((out / "summary.md").read_text())
     print(f"figures and traces in {out}/")
     return 0

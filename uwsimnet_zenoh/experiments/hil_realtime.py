@@ -148,6 +148,10 @@ def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: 
         raise ProcessError("\n".join(bad))
     results = rec.res
     for mac, r in results.items():
+        if not r["t"]:
+            raise ProcessError(f"{mac}: no vehicle poses recorded before t={duration:g} s: too short a run for"
+                               " the processes to start (give --duration 10 or more)")
+    for mac, r in results.items():
         r["delivery"] = h.delivery(_trace(out / f"{mac}.trace.jsonl"))
         h.write_errors(r, out / f"{mac}.errors.csv")
     # the model over the same window as the real-time record (which starts once every pose is known)
