@@ -23,13 +23,9 @@ Carrier sense is off by default (the textbook protocol); ACKs are on, as for CS-
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 from ..phy.frame import Frame
-from .base import Mac, MacContext, register
-
-if TYPE_CHECKING:
-    from ..engine.scheduler import Event
+from .base import IDLE, Mac, MacContext, OneFrameMac, register
 
 MAX_DISTANCE_CAP = 10_000.0
 """Default cap (m) on the distance used for timeouts and slots when `maxDistance` is not given: the
@@ -40,7 +36,7 @@ MAC_HEADER = 5
 """Bytes of a MAC header: source and destination address (2 B each) and a type byte (Aqua-Sim's)."""
 
 # states
-IDLE, SENSE, BACKOFF, SENDING, WAIT_ACK = "idle", "sense", "backoff", "sending", "wait_ack"
+SENSE, BACKOFF, SENDING, WAIT_ACK = "sense", "backoff", "sending", "wait_ack"
 
 
 def number(mac: Mac, name: str, default: float, *, minimum: float | None = None,
@@ -93,7 +89,7 @@ class Dedup:
 
 
 @register("aloha", "cs-aloha", "csaloha")
-class CsAloha(Mac):
+class CsAloha(OneFrameMac):
     """Carrier-sense ALOHA with ACK, ACK timeout, random backoff and a retry limit (docs/mac.md)."""
 
     def __init__(self, ctx: MacContext, params: dict[str, str]) -> None:
@@ -115,20 +111,12 @@ class CsAloha(Mac):
         # addressee's PHY at once -> first bit after the intrinsic delay -> last bit back here
         default_timeout = 2 * self.max_prop + ctx.tx_delay + ctx.tx_time(self.ack_size) + self.guard
         self.ack_timeout = number(self, "ackTimeout", default_timeout, minimum=0.0)
-        self.state = IDLE
-        self.cur: Frame | None = None
-        self.fails = 0                      # failed attempts of `cur`
-        self._timer: Event | None = None
         self._acks: list[Frame] = []        # ACKs waiting for our transmitter
         self._dedup = Dedup()
-        self._closed = False
 
     default_carrier_sense = 1
 
     # -- the interface ------------------------------------------------------------------------
-    def ready(self) -> bool:
-        return self.cur is None
-
     def on_queue(self) -> None:
         if self._closed:            # offered after the modem left: nobody will ever send it
             while (frame := self.ctx.fifo_pop()) is not None:
@@ -167,25 +155,11 @@ class CsAloha(Mac):
         if self._dedup.first(frame):
             ctx.deliver(frame)
 
-    def close(self) -> None:
-        self._closed = True
-        self._cancel()
+    def _release(self) -> None:
         self._acks.clear()
-        if self.cur is not None:
-            frame, self.cur = self.cur, None
-            self.state = IDLE
-            self.ctx.drop(frame, "removed")
 
     # -- the machine --------------------------------------------------------------------------
-    def _next(self) -> None:
-        if self.cur is not None:
-            return
-        frame = self.ctx.fifo_pop()
-        if frame is None:
-            self.state = IDLE
-            return
-        self.cur = frame
-        self.fails = 0
+    def _begin(self) -> None:
         self._wait(self.first_delay())
 
     def _wait(self, delay: float) -> None:
@@ -232,11 +206,6 @@ class CsAloha(Mac):
         self.cur = None
         self.state = IDLE
         self._next()
-
-    def _cancel(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
 
     # -- acknowledgements ---------------------------------------------------------------------
     def _send_ack(self, data: Frame) -> None:

@@ -97,6 +97,60 @@ class Mac:
             raise ValueError(f"macProtocol {name}: expected a number, got {raw!r}") from None
 
 
+IDLE = "idle"
+"""The state of a OneFrameMac with no frame in service."""
+
+
+class OneFrameMac(Mac):
+    """A MAC that serves one frame at a time (`cur`, taken from the FIFO when it is idle), with one pending
+    timer: CS-ALOHA and S-FAMA.  What is common to them lives here: taking the next frame, and giving
+    it up when the modem leaves.  Subclasses start work on `cur` in `_begin()`, and forget any state
+    that outlives a frame in `_release()`."""
+
+    def __init__(self, ctx: MacContext, params: dict[str, str]) -> None:
+        super().__init__(ctx, params)
+        self.state = IDLE
+        self.cur: Frame | None = None
+        self.fails = 0                      # failed attempts of `cur`
+        self._timer: Event | None = None
+        self._closed = False
+
+    def ready(self) -> bool:
+        return self.cur is None
+
+    def close(self) -> None:
+        self._closed = True
+        self._cancel()
+        self._release()
+        if self.cur is not None:
+            frame, self.cur = self.cur, None
+            self.state = IDLE
+            self.ctx.drop(frame, "removed")
+
+    def _next(self) -> None:
+        """Take the next frame from the FIFO, if idle and there is one."""
+        if self.cur is not None:
+            return
+        frame = self.ctx.fifo_pop()
+        if frame is None:
+            self.state = IDLE
+            return
+        self.cur = frame
+        self.fails = 0
+        self._begin()
+
+    def _begin(self) -> None:
+        raise NotImplementedError
+
+    def _release(self) -> None:
+        """The modem leaves: forget what outlives a frame (queued ACKs, a responder's role)."""
+
+    def _cancel(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+
 _BUILTIN: dict[str, str] = {}
 
 

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 
 from ..phy.frame import Frame
 from .aloha import MAC_HEADER, Dedup, ctrl_size, max_distance, next_boundary, number
-from .base import Mac, MacContext, register
+from .base import IDLE, MacContext, OneFrameMac, register
 
 if TYPE_CHECKING:
     from ..engine.scheduler import Event
@@ -39,9 +39,8 @@ MIN_BACKOFF_SLOTS = 4
 """The original (dccomms_ros) raises maxBackoffSlots to at least 4."""
 EPS = 1e-9
 
-# initiator states
-IDLE, BACKOFF, WAIT_CTS, WAIT_DATA_SLOT, SENDING, WAIT_ACK = (
-    "idle", "backoff", "wait_cts", "wait_data_slot", "sending", "wait_ack")
+# initiator states (and IDLE, from base)
+BACKOFF, WAIT_CTS, WAIT_DATA_SLOT, SENDING, WAIT_ACK = "backoff", "wait_cts", "wait_data_slot", "sending", "wait_ack"
 
 
 class _Responder:
@@ -57,7 +56,7 @@ class _Responder:
 
 
 @register("sfama", "s-fama", "slotted-fama")
-class SFama(Mac):
+class SFama(OneFrameMac):
     overhear = True
 
     def __init__(self, ctx: MacContext, params: dict[str, str]) -> None:
@@ -74,16 +73,11 @@ class SFama(Mac):
         largest = max(self.rts_size, self.cts_size, self.ack_size)
         default_slot = self.guard + ctx.tx_delay + ctx.tx_time(largest) + self.max_prop
         self.slot = number(self, "slotTime", default_slot, minimum=1e-9)
-        self.state = IDLE
-        self.cur: Frame | None = None
-        self.fails = 0
         self.nav = 0.0                       # no RTS of ours, and no CTS answered, before this time
         self._n = 0                          # slot index of our current RTS
         self._d = 0                          # its data slots
-        self._timer: Event | None = None
         self._resp: _Responder | None = None
         self._dedup = Dedup()
-        self._closed = False
 
     # -- slot arithmetic ----------------------------------------------------------------------
     def slot_index(self, t: float) -> int:
@@ -103,9 +97,6 @@ class SFama(Mac):
             fn(*args)
 
     # -- the interface ------------------------------------------------------------------------
-    def ready(self) -> bool:
-        return self.cur is None
-
     def on_queue(self) -> None:
         if self._closed:            # offered after the modem left: nobody will ever send it
             while (frame := self.ctx.fifo_pop()) is not None:
@@ -171,25 +162,11 @@ class SFama(Mac):
             self.state = BACKOFF
         self._defer(end)
 
-    def close(self) -> None:
-        self._closed = True
-        self._cancel()
+    def _release(self) -> None:
         self._resp = None
-        if self.cur is not None:
-            frame, self.cur = self.cur, None
-            self.state = IDLE
-            self.ctx.drop(frame, "removed")
 
     # -- initiator ----------------------------------------------------------------------------
-    def _next(self) -> None:
-        if self.cur is not None:
-            return
-        frame = self.ctx.fifo_pop()
-        if frame is None:
-            self.state = IDLE
-            return
-        self.cur = frame
-        self.fails = 0
+    def _begin(self) -> None:
         self._schedule_rts()
 
     def _schedule_rts(self, strictly_later: bool = False) -> None:
@@ -268,11 +245,6 @@ class SFama(Mac):
         self.nav = end
         if self.state == BACKOFF:
             self._schedule_rts()
-
-    def _cancel(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
 
     # -- responder ----------------------------------------------------------------------------
     def _answer_rts(self, rts: Frame, slots: int) -> None:
