@@ -28,7 +28,7 @@ from typing import Any
 
 from ..drivers import dccomms_framing as dl
 from ..drivers._aio import LoopThread
-from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend
+from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend, detach
 from .posix_mq import MessageQueue
 
 log = logging.getLogger("uwsimnet.bridges.mq")
@@ -73,13 +73,8 @@ class MqBridge:
         self._queue_out(dl.gli_cmd_state(self.state))
 
     def close(self) -> None:
-        for lst, fn in ((self.backend.on_frame, self._bk_frame), (self.backend.on_status, self._bk_status)):
-            if fn in lst:
-                lst.remove(fn)
-        if self._io.started:
-            with contextlib.suppress(Exception):
-                self._io.submit(self._stop, timeout=5.0)
-            self._io.stop()
+        detach(self.backend, self._bk_frame, self._bk_status)
+        self._io.shutdown(self._stop)
         for q in (self._txq, self._rxq):
             if q is not None:
                 q.close()

@@ -23,7 +23,6 @@ length above MAX_BODY cannot be resynchronised, so the bridge answers ERROR and 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
 import logging
 import math
@@ -35,7 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..drivers._aio import LoopThread, TcpServer
-from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend
+from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend, detach
 
 log = logging.getLogger("uwsimnet.bridges.socket")
 
@@ -257,14 +256,8 @@ class SocketBridge:
             self.udp_port = self._udp.get_extra_info("sockname")[1]
 
     def close(self) -> None:
-        for lst, fn in ((self.backend.on_frame, self._bk_frame), (self.backend.on_status, self._bk_status)):
-            if fn in lst:
-                lst.remove(fn)
-        if not self._io.started:
-            return
-        with contextlib.suppress(Exception):
-            self._io.run(self._close(), timeout=5.0)
-        self._io.stop()
+        detach(self.backend, self._bk_frame, self._bk_status)
+        self._io.shutdown(self._close)
 
     async def _close(self) -> None:
         self.closing = True

@@ -85,6 +85,19 @@ class LoopThread:
             return fn(*args)
         return self.run(wrap(), timeout)
 
+    def shutdown(self, closing: Callable[[], Any] | None = None, timeout: float = 5.0) -> None:
+        """Run `closing` (a function or a coroutine function) on the loop, ignoring its errors and
+        timeout (the object is going anyway), then stop the loop.  A loop never started is left alone."""
+        if self._thread is None:
+            return
+        if closing is not None:
+            with contextlib.suppress(Exception):
+                if asyncio.iscoroutinefunction(closing):
+                    self.run(closing(), timeout)
+                else:
+                    self.submit(closing, timeout=timeout)
+        self.stop()
+
     def stop(self, timeout: float = 5.0) -> None:
         if self._thread is None:
             return

@@ -81,6 +81,14 @@ class ModemBackend(Protocol):
     def close(self) -> None: ...
 
 
+def detach(backend: ModemBackend, frame_cb: FrameCallback | None = None,
+           status_cb: StatusCallback | None = None) -> None:
+    """Take a front-end's callbacks off its backend (a no-op for those already gone)."""
+    for lst, fn in ((backend.on_frame, frame_cb), (backend.on_status, status_cb)):
+        if fn is not None and fn in lst:
+            lst.remove(fn)
+
+
 class DeliveryTracker:
     """Learns from trace records (docs/trace-format.md) whether unicast frames reached their addressee.
 

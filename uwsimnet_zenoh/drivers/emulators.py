@@ -25,7 +25,7 @@ from typing import Any
 from . import dccomms_framing as dl
 from . import evologics_at as at
 from ._aio import FdStream, LoopThread, TcpServer
-from .backend import BackendFrame, BackendStatus, ModemBackend, link_metrics
+from .backend import BackendFrame, BackendStatus, ModemBackend, detach, link_metrics
 from .serial_radio import set_raw
 
 log = logging.getLogger("uwsimnet.drivers.emulators")
@@ -121,14 +121,8 @@ class EvoLogicsEmulator:
         self._ticker = self._io.loop.create_task(self._tick())
 
     def close(self) -> None:
-        for lst, fn in ((self.backend.on_frame, self._bk_frame), (self.backend.on_status, self._bk_status)):
-            if fn in lst:
-                lst.remove(fn)
-        if not self._io.started:
-            return
-        with contextlib.suppress(Exception):
-            self._io.run(self._close(), timeout=5.0)
-        self._io.stop()
+        detach(self.backend, self._bk_frame, self._bk_status)
+        self._io.shutdown(self._close)
 
     async def _close(self) -> None:
         self.closing = True
@@ -433,12 +427,8 @@ class SerialRadioEmulator:
             self._events(self.decoder.expire(time.monotonic()))
 
     def close(self) -> None:
-        if self._bk_frame in self.backend.on_frame:
-            self.backend.on_frame.remove(self._bk_frame)
-        if self._io.started:
-            with contextlib.suppress(Exception):
-                self._io.submit(self._close, timeout=5.0)
-            self._io.stop()
+        detach(self.backend, self._bk_frame)
+        self._io.shutdown(self._close)
         if self._slave >= 0:
             with contextlib.suppress(OSError):
                 os.close(self._slave)
