@@ -604,20 +604,7 @@ class _Reader:
             if (e := k.get(tag)) is not None:
                 v, raw = self.number(e)
                 f.set(field, v, tag, e, raw)
-        for tag, field in (("txFifoSize", "tx_fifo_bytes"), ("headerBytes", "header_bytes"),
-                           ("maxFrameBytes", "max_frame_bytes")):
-            if (e := k.get(tag)) is not None:
-                v, raw = self.integer(e)
-                f.set(field, v, tag, e, raw)
-
-        if (e := k.get("intrinsicDelay")) is not None:
-            if any(_is_element(c) for c in e):
-                self.tx_rx_ms(e, f, "intrinsic_tx_s", "intrinsic_rx_s")
-            else:
-                _, raw = self.number(e)
-                f.set("intrinsic_tx_s", _ms_to_s(raw), "intrinsicDelay", e, raw)
-        if (e := k.get("jitter")) is not None:
-            self.tx_rx_ms(e, f, "jitter_tx_s", "jitter_rx_s")
+        self.modem_fields(k, f)
 
         if "min_distance" in f.values and "max_distance" in f.values \
                 and f.values["min_distance"] > f.values["max_distance"]:
@@ -741,19 +728,7 @@ class _Reader:
                 and f.values["min_distance"] > f.values["max_distance"]:
             self.fail(k.get("minDistance"), f"minDistance {f.where['min_distance'].raw} is larger than"
                                             f" {f.where['max_distance'].label} {f.where['max_distance'].raw}")
-        for tag, field in (("txFifoSize", "tx_fifo_bytes"), ("headerBytes", "header_bytes"),
-                           ("maxFrameBytes", "max_frame_bytes")):
-            if (e := k.get(tag)) is not None:
-                v, raw = self.integer(e)
-                f.set(field, v, tag, e, raw)
-        if (e := k.get("intrinsicDelay")) is not None:
-            if any(_is_element(c) for c in e):
-                self.tx_rx_ms(e, f, "intrinsic_tx_s", "intrinsic_rx_s")
-            else:
-                _, raw = self.number(e)
-                f.set("intrinsic_tx_s", _ms_to_s(raw), "intrinsicDelay", e, raw)
-        if (e := k.get("jitter")) is not None:
-            self.tx_rx_ms(e, f, "jitter_tx_s", "jitter_rx_s")
+        self.modem_fields(k, f)
         if (e := k.get("macProtocol")) is not None:
             f.set("mac", self.mac(e), "macProtocol", e)
         if (e := k.get("disable")) is not None:
@@ -791,6 +766,22 @@ class _Reader:
             self.fail(els["txChannelId"], f"txChannelId: channel {d.tx_channel} decides collisions by SINR, which"
                                           " needs the received power of every transmitter: only an"
                                           " AcousticCommsDevice can transmit on it")
+
+    def modem_fields(self, k: _Kids, f: _Fields) -> None:
+        """What every device has: FIFO, header and frame sizes (bytes), intrinsic delay and jitter (ms)."""
+        for tag, field in (("txFifoSize", "tx_fifo_bytes"), ("headerBytes", "header_bytes"),
+                           ("maxFrameBytes", "max_frame_bytes")):
+            if (e := k.get(tag)) is not None:
+                v, raw = self.integer(e)
+                f.set(field, v, tag, e, raw)
+        if (e := k.get("intrinsicDelay")) is not None:
+            if any(_is_element(c) for c in e):
+                self.tx_rx_ms(e, f, "intrinsic_tx_s", "intrinsic_rx_s")
+            else:
+                _, raw = self.number(e)
+                f.set("intrinsic_tx_s", _ms_to_s(raw), "intrinsicDelay", e, raw)
+        if (e := k.get("jitter")) is not None:
+            self.tx_rx_ms(e, f, "jitter_tx_s", "jitter_rx_s")
 
     def tx_rx_ms(self, el: _El, f: _Fields, tx_field: str, rx_field: str) -> None:
         k = self.kids(el, single=("tx", "rx"))
