@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("uwsimnet_gli")
-from test_broker_e2e import UWSIMNET, Broker, Proc, device_xml, scene_xml, vehicle_xml  # noqa: E402
+from test_broker_e2e import UWSIMNET, Broker, Proc, device_xml, scene_xml, stop_all, vehicle_xml  # noqa: E402
 from uwsimnet_gli import World  # noqa: E402
 
 from uwsimnet_zenoh.bridges import posix_mq  # noqa: E402
@@ -89,12 +89,7 @@ def test_c_client_and_mq_client_through_the_simulator(tmp_path: Path, c_client):
         if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait(5)
-        errors = []
-        for p in reversed(started):
-            try:
-                p.stop()
-            except AssertionError as e:
-                errors.append(str(e))
+        errors = stop_all(started)
         for q in (dl.tx_queue_name(cid), dl.rx_queue_name(cid)):
             with contextlib.suppress(Exception):
                 posix_mq.MessageQueue.unlink(q)

@@ -180,17 +180,23 @@ class App(Proc):
         assert self.p.returncode == 0, self.output()
 
 
-@pytest.fixture
-def procs():
-    """Processes started by a test, stopped at its end whatever happens."""
-    started: list[Proc] = []
-    yield started
+def stop_all(started: list[Proc]) -> list[str]:
+    """Stop (apps: close) every process, last started first; what went wrong, one text each."""
     errors = []
     for p in reversed(started):
         try:
             p.close() if isinstance(p, App) else p.stop()
         except AssertionError as e:
             errors.append(str(e))
+    return errors
+
+
+@pytest.fixture
+def procs():
+    """Processes started by a test, stopped at its end whatever happens."""
+    started: list[Proc] = []
+    yield started
+    errors = stop_all(started)
     assert not errors, errors
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("uwsimnet_gli")
-from test_broker_e2e import UWSIMNET, Broker, Proc, device_xml, free_port, scene_xml, vehicle_xml  # noqa: E402
+from test_broker_e2e import UWSIMNET, Broker, Proc, device_xml, free_port, scene_xml, stop_all, vehicle_xml  # noqa: E402
 from uwsimnet_gli import World  # noqa: E402
 
 WORLD = "hildrv"
@@ -41,12 +41,7 @@ def parts(tmp_path: Path):
         drv.expect("uwsimnet: driver evologics ready", 20)
         yield b, emu, drv
     finally:
-        errors = []
-        for p in reversed(started):
-            try:
-                p.stop()
-            except AssertionError as e:
-                errors.append(str(e))
+        errors = stop_all(started)
         assert not errors, errors
 
 
@@ -115,12 +110,7 @@ def test_serial_driver_serves_a_modem_id(tmp_path: Path):
             f = b.receive(timeout=10)
             assert f is not None and (f.src, f.dst, f.data) == (1, 2, b"radio reply")
     finally:
-        errors = []
-        for p in reversed(started):
-            try:
-                p.stop()
-            except AssertionError as e:
-                errors.append(str(e))
+        errors = stop_all(started)
         emu.close()
         radio.close()
         assert not errors, errors

@@ -12,7 +12,7 @@ import pytest
 from uwsimnet_zenoh.mobility.kinematic import CommandError, KinematicVehicle
 
 pytest.importorskip("uwsimnet_gli")
-from test_broker_e2e import UWSIMNET, Broker, Proc, device_xml, scene_xml, vehicle_xml  # noqa: E402
+from test_broker_e2e import UWSIMNET, Broker, Proc, device_xml, scene_xml, stop_all, vehicle_xml  # noqa: E402
 from uwsimnet_gli import World  # noqa: E402
 
 WORLD = "kine"
@@ -92,12 +92,7 @@ def test_vehicles_command_moves_a_broker_vehicle(tmp_path: Path):
             assert f is not None
             assert f.t_rx - f.t_tx == pytest.approx(12 * 0.6667e-3 + 4 * 8 / 10_000, abs=1e-4)   # 12 m, 4 bytes
     finally:
-        errors = []
-        for p in reversed(started):
-            try:
-                p.stop()
-            except AssertionError as e:
-                errors.append(str(e))
+        errors = stop_all(started)
         assert not errors, errors
 
 
@@ -138,10 +133,5 @@ def test_vehicles_follow_the_world_clock_speed_and_pause(tmp_path: Path):
             time.sleep(1.0)
             assert x() - xp == pytest.approx(4.0, abs=0.6)
     finally:
-        errors = []
-        for p in reversed(started):
-            try:
-                p.stop()
-            except AssertionError as e:
-                errors.append(str(e))
+        errors = stop_all(started)
         assert not errors, errors
