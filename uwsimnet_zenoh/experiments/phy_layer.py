@@ -8,11 +8,16 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..phy.error import RateErrorModel
+
+if TYPE_CHECKING:
+    from ..scene.model import Scene
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes" / "paper"
 FLOW = "rov0-to-rov1"
@@ -66,7 +71,19 @@ def phases(recs: list[dict]) -> list[dict]:
     return rows
 
 
-def delays(recs: list[dict]) -> dict:
+def delay_formula(scene: Scene, flow_name: str) -> Callable[[float], float]:
+    """The modelled delay of a frame of `flow_name` over d metres with no queueing, from the scene's own
+    figures: tx intrinsic + propagation (min + per metre) + bytes on air / bitrate + rx intrinsic."""
+    flow = next(f for f in scene.flows if f.name == flow_name)
+    devices = [d for v in scene.vehicles for d in v.devices]
+    tx = next(d for d in devices if d.dccomms_id == flow.src)
+    rx = next(d for d in devices if d.address == flow.dst and d.rx_channel == tx.tx_channel)
+    ch = next(c for c in scene.channels if c.id == tx.tx_channel)
+    fixed = tx.intrinsic_tx_s + ch.min_prop_s + (flow.size + tx.header_bytes) * 8 / tx.bitrate + rx.intrinsic_rx_s
+    return lambda d: fixed + ch.prop_s_per_m * d
+
+
+def delays(recs: list[dict], scene: Scene) -> dict:
     """End-to-end delay of rov0's frames: alone (formula) and once rov1 transmits too (paper: ~430 ms)."""
     enq = {(r["src"], r["seq"]): r["t"] for r in recs if r["ev"] == "enq"}
     pts = [(r["t"], r["t"] - enq[(r["src"], r["seq"])], r["dist"]) for r in recs
@@ -75,8 +92,8 @@ def delays(recs: list[dict]) -> dict:
     after = [d for t, d, _ in pts if t >= 60]
     both = [r["t"] - enq[(r["src"], r["seq"])] for r in recs       # either flow, until the queues drain
             if r["ev"] == "rx" and r.get("flow") in (FLOW, BACK) and 37 <= r["t"] < 60]
-    # delay alone = intrinsic 1 ms + propagation + 30 B at 1800 bps (no queueing: one frame every 0.16 s)
-    formula_err = max(abs(d - (0.001 + dist * 0.6667e-3 + SIZE * 8 / 1800)) for d, dist in alone)
+    formula = delay_formula(scene, FLOW)                 # alone, a frame every 0.16 s never queues
+    formula_err = max(abs(d - formula(dist)) for d, dist in alone)
     return {"alone_min_s": min(d for d, _ in alone), "alone_max_s": max(d for d, _ in alone),
             "alone_max_formula_error_s": formula_err,
             "both_mean_s": float(np.mean(both)) if both else None,
@@ -104,7 +121,7 @@ def run(out: Path, progress: bool = True) -> dict:
         if variant == "rf":
             summary[variant]["loss_vs_distance"] = loss_vs_distance(recs)
         else:
-            summary[variant]["delay"] = delays(recs)
+            summary[variant]["delay"] = delays(recs, scene)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     (out / "summary.md").write_text(markdown(summary))
     return summary
