@@ -49,8 +49,6 @@ BLOCK = zenoh.CongestionControl.BLOCK
 rare), and with *drop* Zenoh gives up after `wait_before_drop` (1 ms) without a free batch, which a loaded
 machine hits: the app then missed frames the trace says it received (seen in the HIL formation run).
 *Block* waits at most `wait_before_close` (5 s) and then closes the transport to the stuck peer."""
-"""rx and status: an application that cannot keep up loses messages (its Zenoh queue is full) rather
-than stalling the simulation for everyone (block would wait, up to seconds, in the engine thread)."""
 
 
 def _direct(fn: Any) -> Any:

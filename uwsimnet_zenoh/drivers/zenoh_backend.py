@@ -28,11 +28,11 @@ import zenoh
 
 from ..bus import codec
 from ..bus.keys import Keys
+from ..phy.frame import BROADCAST
 from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback
 
 log = logging.getLogger("uwsimnet.drivers.zenoh")
 
-BROADCAST = 255
 FALLBACK_SOUND_SPEED = 1500.0
 """m/s: the propagation law assumed when a broker's `info` has no `prop` (brokers before it was added)."""
 

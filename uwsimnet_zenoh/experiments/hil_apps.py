@@ -35,6 +35,7 @@ import sys
 import threading
 from dataclasses import dataclass, field
 
+from ..phy.frame import BROADCAST
 from .hil_formation import (
     DEPTH,
     LEADER_PERIOD,
@@ -45,11 +46,10 @@ from .hil_formation import (
     PAYLOAD,
     TELEMETRY_PERIOD,
     VEHICLES,
+    Vec,
     waypoint_at,
 )
 
-Vec = tuple[float, float, float]
-BROADCAST = 255
 _VEC = struct.Struct("<3f")
 
 

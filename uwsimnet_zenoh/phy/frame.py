@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 BROADCAST = 255
+"""Destination address that every modem on the channel accepts (as in dccomms)."""
 
 
 class Frame:

@@ -12,8 +12,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-BROADCAST = 255
-"""Destination address that every modem on the channel accepts (as in dccomms)."""
+from ..phy.frame import BROADCAST
 
 
 class _Model(BaseModel):

@@ -26,7 +26,8 @@ from typing import IO, Any
 import numpy as np
 from rich.table import Table
 
-BROADCAST = 255
+from ..phy.frame import BROADCAST
+
 EVENTS = frozenset({"enq", "tx", "rx", "drop"})
 TX_REASONS = frozenset({"fifo", "retry", "size", "removed"})
 """Drop reasons that happen at the transmitter (used only when the trace cannot tell by itself)."""
