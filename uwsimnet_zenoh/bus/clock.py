@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import threading
 import time
 from typing import Any
 
@@ -17,19 +16,18 @@ from . import codec
 from .keys import Keys
 
 
-def sim_time(sample: dict[str, Any], wall: float | None = None) -> float:
-    """Simulation time at Unix time `wall` (default now) from a clock sample."""
+def sim_time(sample: dict[str, Any]) -> float:
+    """Simulation time now from a clock sample."""
     if sample.get("paused") or not isinstance(sample.get("epoch"), int | float):
         return float(sample["t"])
-    return ((time.time() if wall is None else wall) - float(sample["epoch"])) * float(sample.get("speed") or 1.0)
+    return (time.time() - float(sample["epoch"])) * float(sample.get("speed") or 1.0)
 
 
 class WorldClock:
-    """    clock = WorldClock(session, Keys(world)); clock.wait(5.0); t = clock.now()"""
+    """    clock = WorldClock(session, Keys(world)); t = clock.now()      # None until the first sample"""
 
     def __init__(self, session: zenoh.Session, keys: Keys) -> None:
         self._last: dict[str, Any] | None = None
-        self._cond = threading.Condition()
         self._sub = session.declare_subscriber(keys.clock, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -38,25 +36,12 @@ class WorldClock:
             t, speed = m["t"], m.get("speed", 1.0)
             if not (isinstance(t, int | float) and math.isfinite(t) and isinstance(speed, int | float) and speed > 0):
                 return
-            with self._cond:
-                self._last = m
-                self._cond.notify_all()
+            self._last = m
 
     def now(self) -> float | None:
         """Simulation time now; None before the first clock sample."""
         m = self._last
         return None if m is None else sim_time(m)
-
-    @property
-    def speed(self) -> float:
-        """Simulated seconds per wall second now (0 while paused or before the first sample)."""
-        m = self._last
-        return 0.0 if m is None or m.get("paused") else float(m.get("speed") or 1.0)
-
-    def wait(self, timeout: float) -> bool:
-        """Wait up to `timeout` s for the first sample; whether there is one."""
-        with self._cond:
-            return self._cond.wait_for(lambda: self._last is not None, timeout)
 
     def close(self) -> None:
         with contextlib.suppress(Exception):

@@ -27,6 +27,7 @@ from typing import Any
 import zenoh
 
 from ..bus import codec
+from ..bus.clock import WorldClock
 from ..bus.keys import Keys
 from ..phy.frame import BROADCAST
 from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback
@@ -63,13 +64,14 @@ def discover_world(session: zenoh.Session, timeout: float = 2.0) -> str:
     return found.pop()
 
 
-def prop_law(info: dict[str, Any]) -> tuple[float, float, bool]:
-    """(min s, s per m, known) of the tx channel from an `info` reply: delay = min + per_m * distance.
+def prop_law(info: dict[str, Any], key: str = "prop") -> tuple[float, float, bool]:
+    """(min s, s per m, known) of a channel from an `info` reply: delay = min + per_m * distance.
 
-    The broker sends `prop: {min, per_m}` (phy.channel.Channel's own parameters, so a custom channel's
-    minPropTime/propTimeIncPerMeter and an acoustic channel's 1/sound speed).  A reply without it (older
-    broker, or a real driver) falls back to d / 1500 m/s, and `known` is False."""
-    p = info.get("prop")
+    The broker sends `prop` (tx channel) and `rx_prop` (rx channel) as {min, per_m}: phy.channel.Channel's
+    own parameters, so a custom channel's minPropTime/propTimeIncPerMeter and an acoustic channel's
+    1/sound speed.  A reply without it (older broker, or a real driver) falls back to d / 1500 m/s, and
+    `known` is False."""
+    p = info.get(key)
     if isinstance(p, dict):
         try:
             lo, per_m = float(p["min"]), float(p["per_m"])
@@ -98,9 +100,10 @@ class ZenohBackend:
         self._info = info
         self.address = int(info["address"])
         self.bitrate = float(info.get("bitrate") or 0.0) or None
-        self.prop_min, self.prop_per_m, self.prop_known = prop_law(info)
+        self._tx_law = prop_law(info)
+        self.prop_known = self._tx_law[2]
         # received frames crossed the rx channel (another law when rxChannelId differs)
-        self._rx_law = prop_law({"prop": info.get("rx_prop", info.get("prop"))})
+        self._rx_law = prop_law(info, "rx_prop") if "rx_prop" in info else self._tx_law
         self.on_frame: list[FrameCallback] = []
         self.on_status: list[StatusCallback] = []
         self.counters = {"sent": 0, "received": 0, "statuses": 0}
@@ -108,25 +111,21 @@ class ZenohBackend:
         self._lock = threading.Lock()
         self._tags: OrderedDict[int, tuple[Any, int]] = OrderedDict()     # our tag -> (caller's tag, dst)
         self._next = itertools.count(random.getrandbits(40) + 1)     # apart from other writers' tags
-        self._clock: tuple[float, float, float] | None = None               # (sim t, wall, speed)
+        self.clock = WorldClock(session, self.keys)
         k = self.keys
         self._pub = session.declare_publisher(k.tx(dev), express=True,
                                               congestion_control=zenoh.CongestionControl.BLOCK)
         self._subs = [
             session.declare_subscriber(k.rx(dev), self._on_rx),
             session.declare_subscriber(k.status(dev), self._on_status),
-            session.declare_subscriber(k.clock, self._on_clock),
         ]
         if track_delivery:
             self._subs.append(session.declare_subscriber(k.trace(info.get("tx_channel", 0)), self._on_trace))
 
     # -- ModemBackend -----------------------------------------------------------------------------
     def now(self) -> float:
-        c = self._clock
-        if c is None:
-            return float(self._info.get("t", 0.0))
-        t, wall, speed = c
-        return t + (time.time() - wall) * speed
+        t = self.clock.now()
+        return float(self._info.get("t", 0.0)) if t is None else t
 
     def send(self, dst: int, data: bytes, tag: Any = None, hint: str | None = None) -> None:
         ours = next(self._next)
@@ -141,17 +140,13 @@ class ZenohBackend:
         return dict(self._info, counters=dict(self.counters))
 
     def close(self) -> None:
+        self.clock.close()
         for e in (self._pub, *self._subs):
             with contextlib.suppress(Exception):
                 e.undeclare()
         self._subs = []
 
     # -- Zenoh callbacks --------------------------------------------------------------------------
-    def _on_clock(self, sample: zenoh.Sample) -> None:
-        with contextlib.suppress(Exception):
-            m = codec.unpack(sample.payload.to_bytes(), codec.MAX_SMALL_MESSAGE)
-            self._clock = (float(m["t"]), time.time(), 0.0 if m.get("paused") else float(m.get("speed", 1.0)))
-
     def _on_trace(self, sample: zenoh.Sample) -> None:
         with contextlib.suppress(Exception):
             rec = codec.unpack(sample.payload.to_bytes(), codec.MAX_SMALL_MESSAGE)
@@ -167,7 +162,7 @@ class ZenohBackend:
         size = len(f.data) + int(self._info.get("header_bytes") or 0)
         # the broker's distance (older brokers: none, and link_metrics falls back to t_rx - t_tx)
         bf = BackendFrame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, size, self.bitrate,
-                          f.dist, None if f.dist is None else self._rx_law[0] + self._rx_law[1] * f.dist)
+                          f.dist, None if f.dist is None else self.prop_time(f.dist, rx=True))
         for cb in list(self.on_frame):
             try:
                 cb(bf)
@@ -195,9 +190,11 @@ class ZenohBackend:
             self.tracker.forget(self.address, st.seq)
         self._emit(BackendStatus(tag, st.event, st.reason, st.t, st.seq if st.seq is not None else -1))
 
-    def prop_time(self, dist: float) -> float:
-        """One-way propagation time (s) over `dist` m on this modem's tx channel, as the broker's PHY has it."""
-        return self.prop_min + self.prop_per_m * float(dist)
+    def prop_time(self, dist: float, *, rx: bool = False) -> float:
+        """One-way propagation time (s) over `dist` m on this modem's tx channel (rx: its rx channel), as
+        the broker's PHY has it."""
+        lo, per_m, _ = self._rx_law if rx else self._tx_law
+        return lo + per_m * float(dist)
 
     def _prop(self, dist: Any) -> float | None:
         return None if dist is None else self.prop_time(dist)
