@@ -117,9 +117,13 @@ class KinematicRunner:
             if nxt < time.monotonic():
                 nxt = time.monotonic() + self.period
 
+    def observed(self, v: KinematicVehicle) -> tuple[float, float, float]:
+        """The position published for `v`: its true one (a subclass may model a tracker's error)."""
+        return v.p
+
     def _publish(self, now: float | None) -> None:
         with self._lock:
-            out = [(n, v.p, v.v) for n, v in self.vehicles.items()]
+            out = [(n, self.observed(v), v.v) for n, v in self.vehicles.items()]
         for n, p, vel in out:
             with contextlib.suppress(Exception):
                 self._pubs[n].put(codec.encode_pose(p, v=vel, t=now))

@@ -34,7 +34,11 @@ import struct
 import sys
 import threading
 from dataclasses import dataclass, field
+from typing import Any
 
+from ..bus import codec
+from ..bus.kinematic import KinematicRunner, cmd_key
+from ..mobility.kinematic import KinematicVehicle
 from ..phy.frame import BROADCAST
 from .hil_formation import (
     DEPTH,
@@ -124,6 +128,7 @@ class Leader(App):
         return [Goto(wp)]
 
 
+@dataclass
 class Follower(App):
     offset: Vec = (0.0, 0.0, 0.0)
 
@@ -152,9 +157,7 @@ def make_app(name: str) -> App:
     if name not in VEHICLES:
         raise ValueError(f"no application for {name!r} (one of {', '.join([OPERATOR[0], *VEHICLES])})")
     i = [n for n in VEHICLES if n != "leader"].index(name)
-    f = Follower(name, VEHICLES[name][0], TELEMETRY_PERIOD, 0.3 + 0.25 * i)
-    f.offset = VEHICLES[name][1]
-    return f
+    return Follower(name, VEHICLES[name][0], TELEMETRY_PERIOD, 0.3 + 0.25 * i, offset=VEHICLES[name][1])
 
 
 def first_due(app: App, now: float) -> float:
@@ -163,15 +166,6 @@ def first_due(app: App, now: float) -> float:
 
 
 # -- real time: one app per process ----------------------------------------------------------------
-def _pose_of(raw: bytes) -> Vec | None:
-    from uwsimnet_gli._wire import unpack
-
-    with contextlib.suppress(Exception):
-        p = unpack(raw)["p"]
-        return (float(p[0]), float(p[1]), float(p[2]))
-    return None
-
-
 def _stop_on_signals() -> threading.Event:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -182,22 +176,25 @@ def _stop_on_signals() -> threading.Event:
 def run_app(name: str, world_name: str, connect: str) -> None:
     """Run the application of `name` on its modem `<name>-modem` until SIGINT/SIGTERM."""
     from uwsimnet_gli import World
-    from uwsimnet_gli._wire import pack
 
     app = make_app(name)
     stop = _stop_on_signals()
     lock = threading.Lock()
     with World(world_name, connect=connect) as w:
         pose: list[Vec | None] = [None]
-        sub = w.session.declare_subscriber(w.keys.pose(name), lambda s: pose.__setitem__(
-            0, _pose_of(s.payload.to_bytes()) or pose[0]))
-        cmd = w.session.declare_publisher(f"uwsimnet/{w.name}/vehicle/{name}/cmd")
+
+        def on_pose(sample: Any) -> None:
+            with contextlib.suppress(codec.CodecError):
+                pose[0] = codec.decode_pose(sample.payload.to_bytes()).p
+
+        sub = w.session.declare_subscriber(w.keys.pose(name), on_pose)
+        cmd = w.session.declare_publisher(cmd_key(w.name, name))
         modem = w.modem(f"{name}-modem")
 
         def on_frame(f) -> None:
             with lock:
                 for g in app.on_frame(f.src, f.data):
-                    cmd.put(pack({"waypoint": list(g.waypoint)}))
+                    cmd.put(codec.pack({"waypoint": list(g.waypoint)}))
 
         modem.on_receive(on_frame)
         if w.sim_time(timeout=10.0) is None:
@@ -219,40 +216,33 @@ def run_app(name: str, world_name: str, connect: str) -> None:
     print(f"hil_apps: {name} sent {app.sent}, received {app.received}", flush=True)
 
 
-def run_robot(world_name: str, connect: str, *, rate_hz: float = 15.0, noise: float = 0.02,
-              seed: int = 1) -> None:
-    """The leader's stand-in: a kinematic BlueROV obeying `vehicle/leader/cmd` (stepped on the world's
-    simulation time, like `uwsimnet vehicles`), its tracked pose (Gaussian noise of `noise` m per axis,
-    `rate_hz` samples per wall second like a camera tracker) published on `pose/leader`."""
+class TrackedRobot(KinematicRunner):
+    """The leader's stand-in: a kinematic BlueROV obeying `vehicle/leader/cmd` on the world's clock (as
+    `uwsimnet vehicles` does), whose published pose is what a camera tracker would report: the true
+    position plus Gaussian noise of `noise` m per axis, `rate_hz` samples per wall second."""
+
+    def __init__(self, session: Any, world: str, *, rate_hz: float = 15.0, noise: float = 0.02,
+                 seed: int = 1) -> None:
+        off = VEHICLES["leader"][1]
+        leader = KinematicVehicle("leader", (off[0], off[1], DEPTH), max_speed=MAX_SPEED, max_accel=MAX_ACCEL)
+        super().__init__(session, world, [leader], rate_hz=rate_hz)
+        self.noise = noise
+        self._rng = random.Random(seed)
+
+    def observed(self, v: KinematicVehicle) -> Vec:
+        x, y, z = v.p
+        g = self._rng.gauss
+        return (x + g(0.0, self.noise), y + g(0.0, self.noise), z + g(0.0, self.noise))
+
+
+def run_robot(world_name: str, connect: str, *, rate_hz: float = 15.0) -> None:
+    """Run the TrackedRobot in this process until SIGINT/SIGTERM."""
     from uwsimnet_gli import World
-    from uwsimnet_gli._wire import unpack
 
-    from ..mobility.kinematic import CommandError, KinematicVehicle
-
-    off = VEHICLES["leader"][1]
-    v = KinematicVehicle("leader", (off[0], off[1], DEPTH), max_speed=MAX_SPEED, max_accel=MAX_ACCEL)
-    rng = random.Random(seed)
     stop = _stop_on_signals()
-    lock = threading.Lock()
-
-    def on_cmd(sample) -> None:
-        with lock, contextlib.suppress(CommandError, ValueError, TypeError):
-            v.command(unpack(sample.payload.to_bytes()))
-
-    with World(world_name, connect=connect) as w:
-        sub = w.session.declare_subscriber(f"uwsimnet/{w.name}/vehicle/leader/cmd", on_cmd)
-        if w.sim_time(timeout=10.0) is None:
-            raise SystemExit(f"hil_apps: no clock from world {world_name!r}")
-        last = w.sim_time() or 0.0
+    with World(world_name, connect=connect) as w, TrackedRobot(w.session, w.name, rate_hz=rate_hz):
         print(f"hil_apps: robot leader ready in {w.name}", flush=True)
-        while not stop.wait(1.0 / rate_hz):                  # the camera's rate, on the wall
-            now = w.sim_time() or last
-            with lock:
-                v.step(now - last)                           # the vehicle moves in simulation time
-                p, vel = v.p, v.v
-            last = now
-            w.publish_pose("leader", [c + rng.gauss(0.0, noise) for c in p], v=vel, t=now)
-        sub.undeclare()
+        stop.wait()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -22,21 +22,18 @@ from __future__ import annotations
 
 import contextlib
 import json
-import socket
+import re
 import time
 from pathlib import Path
 from typing import Any
 
+from ..bus import codec
+from ..bus.keys import parse
+from ..trace.report import read_trace
 from . import hil_formation as h
 from .processes import PY, ProcessError, Processes
 
 TICK = 0.1
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _uwsimnet(*args: str) -> list[str]:
@@ -73,8 +70,6 @@ class Recorder:
     that world's simulation time."""
 
     def __init__(self, session: Any, worlds: dict[str, Any], until: float) -> None:
-        from uwsimnet_gli._wire import unpack
-
         self.until = until
         self.worlds = worlds                                  # mac -> uwsimnet_gli.World
         self.poses: dict[str, dict[str, h.Vec]] = {mac: {} for mac in worlds}
@@ -83,10 +78,11 @@ class Recorder:
         by_world = {w.name: mac for mac, w in worlds.items()}
 
         def on_pose(sample: Any) -> None:
-            parts = str(sample.key_expr).split("/")          # uwsimnet/<world>/pose/<vehicle>
-            with contextlib.suppress(Exception):
-                p = unpack(sample.payload.to_bytes())["p"]
-                self.poses[by_world[parts[1]]][parts[3]] = (float(p[0]), float(p[1]), float(p[2]))
+            k = parse(sample.key_expr)
+            if k is None or k.kind != "pose" or k.world not in by_world or k.name is None:
+                return
+            with contextlib.suppress(codec.CodecError):
+                self.poses[by_world[k.world]][k.name] = codec.decode_pose(sample.payload.to_bytes()).p
 
         self._sub = session.declare_subscriber("uwsimnet/*/pose/*", on_pose)
 
@@ -116,11 +112,6 @@ class Recorder:
             self._sub.undeclare()
 
 
-def _trace(path: Path) -> list[dict[str, Any]]:
-    with path.open() as fh:
-        return [json.loads(line) for line in fh if line.strip()]
-
-
 def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: Path | None = None) -> dict[str, Any]:
     """Run both MACs in real time (about `duration` / `speed` s plus start-up; `speed` > 1 is for runs
     without hardware: every process follows the worlds' clocks); Fig. 9, summary.md/json in `out`."""
@@ -128,9 +119,9 @@ def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: 
     from uwsimnet_gli import World
 
     out.mkdir(parents=True, exist_ok=True)
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
     with Processes(out / "logs") as procs:
-        procs.start("router", _uwsimnet("router", "--listen", endpoint), ready="listening on")
+        router = procs.start("router", _uwsimnet("router", "--listen", "tcp/127.0.0.1:0"), ready="listening on")
+        endpoint = re.search(r"tcp/127\.0\.0\.1:\d+", router.output()).group(0)      # the port it was given
         worlds = {mac: start_world(procs, mac, endpoint, out, duration, speed) for mac in h.PROTOCOLS}
         with World(worlds["aloha"], connect=endpoint) as wa, World(worlds["sfama"], connect=endpoint) as ws:
             rec = Recorder(wa.session, {"aloha": wa, "sfama": ws}, duration)
@@ -152,7 +143,7 @@ def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: 
             raise ProcessError(f"{mac}: no vehicle poses recorded before t={duration:g} s: too short a run for"
                                " the processes to start (give --duration 10 or more)")
     for mac, r in results.items():
-        r["delivery"] = h.delivery(_trace(out / f"{mac}.trace.jsonl"))
+        r["delivery"] = h.delivery(read_trace(out / f"{mac}.trace.jsonl")[1])
         h.write_errors(r, out / f"{mac}.errors.csv")
     # the model over the same window as the real-time record (which starts once every pose is known)
     model = {mac: h.window(h.simulate(mac, duration=duration), results[mac]["t"][0]) for mac in h.PROTOCOLS}
