@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 
 from ..phy.frame import Frame
-from .base import IDLE, Mac, MacContext, OneFrameMac, register
+from .base import Mac, MacContext, OneFrameMac, register
 
 MAX_DISTANCE_CAP = 10_000.0
 """Default cap (m) on the distance used for timeouts and slots when `maxDistance` is not given: the
@@ -190,22 +190,10 @@ class CsAloha(OneFrameMac):
         self._timer = None
         if self.cur is None or self.state != WAIT_ACK:
             return
-        self.fails += 1
-        if self.fails > self.max_retries:
-            frame = self.cur
-            self.cur = None
-            self.ctx.drop(frame, "retry")
-            self.ctx.status(frame, "failed")
-            self._done()
+        if not self._retry():
             return
         self.state = BACKOFF
         self._timer = self.ctx.timer(self.backoff_delay(), self._attempt)
-
-    def _done(self) -> None:
-        self._cancel()
-        self.cur = None
-        self.state = IDLE
-        self._next()
 
     # -- acknowledgements ---------------------------------------------------------------------
     def _send_ack(self, data: Frame) -> None:

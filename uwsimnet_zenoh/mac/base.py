@@ -104,8 +104,10 @@ IDLE = "idle"
 class OneFrameMac(Mac):
     """A MAC that serves one frame at a time (`cur`, taken from the FIFO when it is idle), with one pending
     timer: CS-ALOHA and S-FAMA.  What is common to them lives here: taking the next frame, and giving
-    it up when the modem leaves.  Subclasses start work on `cur` in `_begin()`, and forget any state
-    that outlives a frame in `_release()`."""
+    it up when the modem leaves or after `max_retries` failed attempts.  Subclasses set `max_retries`,
+    start work on `cur` in `_begin()`, and forget any state that outlives a frame in `_release()`."""
+
+    max_retries: int
 
     def __init__(self, ctx: MacContext, params: dict[str, str]) -> None:
         super().__init__(ctx, params)
@@ -138,6 +140,26 @@ class OneFrameMac(Mac):
         self.cur = frame
         self.fails = 0
         self._begin()
+
+    def _done(self) -> None:
+        """`cur` is finished with (sent, acknowledged or given up): take the next frame."""
+        self._cancel()
+        self.cur = None
+        self.state = IDLE
+        self._next()
+
+    def _retry(self) -> bool:
+        """Count a failed attempt of `cur`; past `max_retries` give it up (dropped `retry`, status
+        `failed`) and go on with the next frame.  Whether `cur` gets another attempt."""
+        self.fails += 1
+        if self.fails <= self.max_retries:
+            return True
+        frame = self.cur
+        self.cur = None
+        self.ctx.drop(frame, "retry")
+        self.ctx.status(frame, "failed")
+        self._done()
+        return False
 
     def _begin(self) -> None:
         raise NotImplementedError

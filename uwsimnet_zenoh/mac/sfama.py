@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 
 from ..phy.frame import Frame
 from .aloha import MAC_HEADER, Dedup, ctrl_size, max_distance, next_boundary, number
-from .base import IDLE, MacContext, OneFrameMac, register
+from .base import MacContext, OneFrameMac, register
 
 if TYPE_CHECKING:
     from ..engine.scheduler import Event
@@ -222,21 +222,8 @@ class SFama(OneFrameMac):
         self._timer = None
         if self.cur is None:
             return
-        self.fails += 1
-        if self.fails > self.max_retries:
-            frame = self.cur
-            self.cur = None
-            self.ctx.drop(frame, "retry")
-            self.ctx.status(frame, "failed")
-            self._done()
-            return
-        self._schedule_rts(strictly_later=True)
-
-    def _done(self) -> None:
-        self._cancel()
-        self.cur = None
-        self.state = IDLE
-        self._next()
+        if self._retry():
+            self._schedule_rts(strictly_later=True)
 
     def _defer(self, end: float) -> None:
         """Virtual carrier sense: no RTS of ours before `end`."""
