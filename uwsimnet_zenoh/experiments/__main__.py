@@ -37,6 +37,7 @@ def main(argv: list[str] | None = None) -> int:
         from . import hil_realtime as experiment
     else:
         from . import twinbot as experiment
+
     def interrupt(*_: object) -> None:
         raise KeyboardInterrupt
 
