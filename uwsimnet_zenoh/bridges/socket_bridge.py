@@ -33,7 +33,7 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
-from ..drivers._aio import LoopThread, TcpServer
+from ..drivers._aio import LoopThread, ServerClient, TcpServer
 from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend, detach
 
 log = logging.getLogger("uwsimnet.bridges.socket")
@@ -345,20 +345,16 @@ class SocketBridge:
             self._sendto(msg, origin)
 
 
-class _TcpClient(asyncio.Protocol):
+class _TcpClient(ServerClient):
     def __init__(self, bridge: SocketBridge) -> None:
+        super().__init__(bridge._tcp_clients)
         self.bridge = bridge
         self.decoder = StreamDecoder()
-        self.transport: asyncio.Transport | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport  # type: ignore[assignment]
-        if self.bridge.closing:
-            transport.close()
-            return
-        self.bridge._tcp_clients.append(self)
-        self.bridge.counters["tcp_connections"] += 1
-        self.write(self.bridge.hello())
+        if self.accept(transport, self.bridge.closing):
+            self.bridge.counters["tcp_connections"] += 1
+            self.write(self.bridge.hello())
 
     def data_received(self, data: bytes) -> None:
         msgs, errs = self.decoder.feed(data)
@@ -373,17 +369,6 @@ class _TcpClient(asyncio.Protocol):
         if self.decoder.broken:
             self.close()
 
-    def connection_lost(self, exc: Exception | None) -> None:
-        if self in self.bridge._tcp_clients:
-            self.bridge._tcp_clients.remove(self)
-
-    def write(self, data: bytes) -> None:
-        if self.transport is not None and not self.transport.is_closing():
-            self.transport.write(data)
-
-    def close(self) -> None:
-        if self.transport is not None:
-            self.transport.close()
 
 
 class _Udp(asyncio.DatagramProtocol):

@@ -188,6 +188,35 @@ class FdStream:
                 os.close(self.fd)
 
 
+class ServerClient(asyncio.Protocol):
+    """A TCP connection of a server that keeps its live connections in a list: `accept` admits it (or
+    closes it when `refuse`), it leaves the list when it goes, and `write`/`close` are safe after that."""
+
+    def __init__(self, clients: list[Any]) -> None:
+        self.clients = clients
+        self.transport: asyncio.Transport | None = None
+
+    def accept(self, transport: asyncio.BaseTransport, refuse: bool) -> bool:
+        self.transport = transport  # type: ignore[assignment]
+        if refuse:
+            transport.close()
+            return False
+        self.clients.append(self)
+        return True
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self in self.clients:
+            self.clients.remove(self)
+
+    def write(self, data: bytes) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.write(data)
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+
+
 class TcpServer:
     """A listening TCP socket on a loop whose accepted connections go to `factory()` protocols.
 

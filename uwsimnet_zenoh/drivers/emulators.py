@@ -24,7 +24,7 @@ from typing import Any
 
 from . import dccomms_framing as dl
 from . import evologics_at as at
-from ._aio import FdStream, LoopThread, TcpServer
+from ._aio import FdStream, LoopThread, ServerClient, TcpServer
 from .backend import BackendFrame, BackendStatus, ModemBackend, detach, link_metrics
 from .serial_radio import set_raw
 
@@ -336,19 +336,15 @@ class EvoLogicsEmulator:
                               m.velocity))
 
 
-class _AtClient(asyncio.Protocol):
+class _AtClient(ServerClient):
     def __init__(self, emu: EvoLogicsEmulator) -> None:
+        super().__init__(emu.clients)
         self.emu = emu
         self.codec = at.DeviceCodec(payload_timeout=emu.payload_timeout)
-        self.transport: asyncio.Transport | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport  # type: ignore[assignment]
-        if self.emu.closing or len(self.emu.clients) >= self.emu.max_clients:
-            transport.close()
-            return
-        self.emu.clients.append(self)
-        self.emu.counters["connections"] += 1
+        if self.accept(transport, self.emu.closing or len(self.emu.clients) >= self.emu.max_clients):
+            self.emu.counters["connections"] += 1
 
     def data_received(self, data: bytes) -> None:
         try:
@@ -357,17 +353,6 @@ class _AtClient(asyncio.Protocol):
         except Exception:  # noqa: BLE001 - one client's bad input must not stop the emulator
             log.exception("%s: error handling a command", self.emu.backend.id)
 
-    def connection_lost(self, exc: Exception | None) -> None:
-        if self in self.emu.clients:
-            self.emu.clients.remove(self)
-
-    def write(self, data: bytes) -> None:
-        if self.transport is not None and not self.transport.is_closing():
-            self.transport.write(data)
-
-    def close(self) -> None:
-        if self.transport is not None:
-            self.transport.close()
 
 
 def _frame_error(ev: dl.FrameEvent) -> str:
