@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
 from typing import Any
 
 import pytest
@@ -53,3 +57,19 @@ class Recorded:
 @pytest.fixture
 def record():
     return Recorded
+
+
+def netns_unavailable(what: str, *, openssl: bool = False) -> str | None:
+    """Why network-namespace tests cannot run here (None: they can); `what` names the test in the reason."""
+    if sys.platform != "linux":
+        return "network namespaces need Linux"
+    if os.geteuid() != 0:
+        return f"needs root (network namespaces): run the suite as root to include {what}"
+    if shutil.which("ip") is None:
+        return "needs iproute2 (`ip`)"
+    r = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True)
+    if r.returncode != 0:
+        return f"`ip netns` does not work here: {r.stderr.strip()}"
+    if openssl and shutil.which("openssl") is None:
+        return "needs openssl (TLS certificates)"
+    return None

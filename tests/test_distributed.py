@@ -12,26 +12,15 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import netns_unavailable
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN_SCENE = ROOT / "deploy" / "netns" / "run-scene.sh"
 HOSTS = ROOT / "deploy" / "netns" / "hosts.sh"
 
 
-def _why_not() -> str | None:
-    if sys.platform != "linux":
-        return "network namespaces need Linux"
-    if os.geteuid() != 0:
-        return "needs root (network namespaces): run the suite as root to include the distributed scene"
-    if shutil.which("ip") is None:
-        return "needs iproute2 (`ip`)"
-    r = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True)
-    if r.returncode != 0:
-        return f"`ip netns` does not work here: {r.stderr.strip()}"
-    return None
-
-
-pytestmark = pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")
+WHY_NOT = netns_unavailable("the distributed scene")
+pytestmark = pytest.mark.skipif(WHY_NOT is not None, reason=WHY_NOT or "")
 
 
 def _namespaces(prefix: str) -> list[str]:

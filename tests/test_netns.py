@@ -5,35 +5,21 @@ subscriber in host 3.  Needs root and `ip netns`; the namespaces are always remo
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import netns_unavailable
 
 ROOT = Path(__file__).resolve().parents[1]
 HOSTS = ROOT / "deploy" / "netns" / "hosts.sh"
 PUBSUB = ROOT / "deploy" / "netns" / "pubsub.py"
 
 
-def _why_not() -> str | None:
-    if sys.platform != "linux":
-        return "network namespaces need Linux"
-    if os.geteuid() != 0:
-        return "needs root (network namespaces): run the suite as root to include the multi-host test"
-    if shutil.which("ip") is None:
-        return "needs iproute2 (`ip`)"
-    r = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True)
-    if r.returncode != 0:
-        return f"`ip netns` does not work here: {r.stderr.strip()}"
-    if shutil.which("openssl") is None:
-        return "needs openssl (TLS certificates)"
-    return None
-
-
-pytestmark = pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")
+WHY_NOT = netns_unavailable("the multi-host test", openssl=True)
+pytestmark = pytest.mark.skipif(WHY_NOT is not None, reason=WHY_NOT or "")
 
 
 def _namespaces(prefix: str) -> list[str]:
