@@ -24,9 +24,9 @@ from uwsimnet_zenoh.drivers.serial_radio import set_raw  # noqa: E402
 
 WORLD = "emuserial"
 WAIT = 10.0
-# As the `uwsimnet` console script runs it.  (`python -m uwsimnet_zenoh.cli` runs cli.py as __main__, whose
-# UserError is not the class drivers/commands.py raises: it would print a traceback, exit 1.)
-USER_CLI = [PY, "-c", "import sys; from uwsimnet_zenoh.cli import main; sys.exit(main(sys.argv[1:]))"]
+# `python -m` runs cli.py as __main__ (a second copy of the module): errors raised by the sub-commands
+# must still come out as one line with exit 2 (UserError lives in uwsimnet_zenoh.errors for that)
+USER_CLI = [PY, "-m", "uwsimnet_zenoh.cli"]
 
 
 @pytest.fixture(scope="module")

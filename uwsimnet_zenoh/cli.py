@@ -13,9 +13,7 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-
-class UserError(Exception):
-    """A problem with the user's input: printed as one line, exit code 2."""
+from .errors import UserError
 
 
 def _warn(msg: str) -> None:
@@ -230,8 +228,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # `python -m uwsimnet_zenoh.cli` runs this file as __main__, a second copy of the module: take main()
-    # from the module proper so that the UserError raised by the subcommands is the one caught there
-    from uwsimnet_zenoh.cli import main as _main
-
-    sys.exit(_main())
+    sys.exit(main())

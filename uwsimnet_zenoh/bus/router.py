@@ -12,6 +12,7 @@ import signal
 import threading
 from typing import Any
 
+from ..errors import UserError
 from .session import BusError, locators, make_config, open_raw
 
 DEFAULT_ROUTER_LISTEN = "tcp/[::]:7447"
@@ -52,7 +53,6 @@ def _endpoints(raw: str, mode: str) -> list[str]:
 
 
 def run_router(args: Any) -> int:
-    from ..cli import UserError  # noqa: PLC0415
 
     # --listen wins; else the file's listen endpoints (TLS-only configurations); else tcp/[::]:7447
     listen = args.listen or ([] if args.config else [DEFAULT_ROUTER_LISTEN])

@@ -24,17 +24,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..errors import UserError
 from ..scene.model import Scene
 from .router import StopOnSignal
 from .session import DEFAULT_ENDPOINT, BusError, locators, make_config, open_raw, tune_threads
 
 log = logging.getLogger("uwsimnet.bus.runtime")
-
-
-def _user_error(msg: str) -> Exception:
-    from ..cli import UserError  # noqa: PLC0415 - cli imports us lazily; avoid the cycle at import time
-
-    return UserError(msg)
 
 
 def parse_channels(spec: str | None, scene: Scene) -> set[int] | None:
@@ -49,9 +44,9 @@ def parse_channels(spec: str | None, scene: Scene) -> set[int] | None:
         try:
             cid = int(part)
         except ValueError:
-            raise _user_error(f"--channels: {part!r} is not a channel id") from None
+            raise UserError(f"--channels: {part!r} is not a channel id") from None
         if cid not in ids:
-            raise _user_error(f"--channels: the scene has no channel {cid} (it has {sorted(ids)})")
+            raise UserError(f"--channels: the scene has no channel {cid} (it has {sorted(ids)})")
         out.add(cid)
     return out or None
 
@@ -74,7 +69,7 @@ def select_channels(scene: Scene, channels: set[int] | None) -> tuple[Scene, set
                 keep.append(d)
             elif (d.tx_channel in channels) != (d.rx_channel in channels):
                 both = ",".join(str(c) for c in sorted(channels | {d.tx_channel, d.rx_channel}))
-                raise _user_error(f"--channels {','.join(str(c) for c in sorted(channels))}: device"
+                raise UserError(f"--channels {','.join(str(c) for c in sorted(channels))}: device"
                                   f" {d.dccomms_id} transmits on channel {d.tx_channel} and receives on channel"
                                   f" {d.rx_channel}; one broker must serve both (e.g. --channels {both})")
             else:
@@ -97,7 +92,7 @@ def parse_external(spec: str | None, scene: Scene) -> set[str]:
     out = {p.strip() for p in spec.split(",") if p.strip()}
     unknown = out - names
     if unknown:
-        raise _user_error(f"--external-flows: no flow {', '.join(sorted(unknown))} in the scene"
+        raise UserError(f"--external-flows: no flow {', '.join(sorted(unknown))} in the scene"
                           f" (flows: {', '.join(sorted(names)) or 'none'})")
     return out
 
@@ -114,9 +109,9 @@ def _file_endpoints(path: str) -> tuple[str, list[str], list[str]]:
         mode = json.loads(conf.get_json("mode")) or "client"
         eps = {k: json.loads(conf.get_json(f"{k}/endpoints")) for k in ("connect", "listen")}
     except (zenoh.ZError, ValueError) as e:
-        raise _user_error(f"{path}: {' '.join(str(e).split())}") from None
+        raise UserError(f"{path}: {' '.join(str(e).split())}") from None
     if mode not in ("client", "router"):
-        raise _user_error(f"{path}: mode {mode!r}: uwsimnet run is a client or a router")
+        raise UserError(f"{path}: mode {mode!r}: uwsimnet run is a client or a router")
     for k, v in eps.items():                        # Zenoh's defaults are per mode: {"router": [...], ...}
         eps[k] = [str(e) for e in (v.get(mode) or [] if isinstance(v, dict) else v or [])]
     return mode, eps["connect"], eps["listen"] if mode == "router" else []
@@ -162,10 +157,10 @@ def run_realtime(scene: Scene, args: Any) -> int:
     _setup_logging()
     duration = args.duration if args.duration is not None else scene.simulation.duration
     if duration is not None and not duration > 0:
-        raise _user_error("--duration must be > 0")
+        raise UserError("--duration must be > 0")
     speed = getattr(args, "speed", 1.0)
     if not (math.isfinite(speed) and speed > 0):
-        raise _user_error("--speed must be a number > 0")
+        raise UserError("--speed must be a number > 0")
     channels = parse_channels(getattr(args, "channels", None), scene)
     external = parse_external(getattr(args, "external_flows", None), scene)
     hosted, foreign = select_channels(scene, channels)
@@ -193,13 +188,13 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
     listen = list(args.listen or ())
     connect = list(args.connect or ())
     if connect and listen:
-        raise _user_error("give --listen (embedded router) or --connect (existing router), not both")
+        raise UserError("give --listen (embedded router) or --connect (existing router), not both")
     zconf = getattr(args, "zenoh_config", None) or os.environ.get("ZENOH_CONFIG") or None
     mode = "client" if connect else "router"
     if zconf and not listen and not connect:        # the file says it all: its mode and its endpoints
         mode, connect, listen = _file_endpoints(zconf)
         if mode == "client" and not connect:
-            raise _user_error(f"{zconf}: a client configuration without connect/endpoints; give --connect")
+            raise UserError(f"{zconf}: a client configuration without connect/endpoints; give --connect")
     if not connect and not listen:
         listen = [DEFAULT_ENDPOINT]
 
@@ -209,7 +204,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
         net = Network(hosted, seed=args.seed, duration=duration if duration is not None else math.inf,
                       flows=False)
     except ValueError as e:
-        raise _user_error(f"{scene.source}: {e}") from None
+        raise UserError(f"{scene.source}: {e}") from None
     for f in hosted.flows:
         if f.name not in external:
             net.flows.append(FlowSource(f, net.modems[f.src], net.sched, net.seeds("flow", f.name),
@@ -220,7 +215,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
         conf = (make_config("client", connect=connect, connect_timeout_ms=3000, config_file=zconf)
                 if mode == "client" else make_config("router", listen=listen, config_file=zconf))
     except (BusError, ValueError) as e:
-        raise _user_error(str(e)) from None
+        raise UserError(str(e)) from None
 
     summary: dict[str, Any] = {}
     with StopOnSignal() as stop:
@@ -228,8 +223,8 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
             session = open_raw(conf)
         except BusError as e:
             if connect:
-                raise _user_error(f"cannot connect to {', '.join(connect)}: {e}") from None
-            raise _user_error(f"cannot listen on {', '.join(listen)} ({e}); is another uwsimnet or router"
+                raise UserError(f"cannot connect to {', '.join(connect)}: {e}") from None
+            raise UserError(f"cannot listen on {', '.join(listen)} ({e}); is another uwsimnet or router"
                               f" running there? use --connect {listen[0]} to join it, or --listen"
                               " another endpoint") from None
         broker = None
@@ -257,12 +252,12 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 try:
                     net.tracer.add(CallbackSink(load_tracing_class(scene.tracing.class_name)))
                 except ValueError as e:
-                    raise _user_error(f"{scene.source}:{scene.tracing.line}: {e}") from None
+                    raise UserError(f"{scene.source}:{scene.tracing.line}: {e}") from None
             try:
                 broker = Broker(session, net, clock, world=world, channels=channels, foreign=foreign)
                 broker.start()
             except ValueError as e:
-                raise _user_error(f"{scene.source}: {e} (names become Zenoh keys; --world NAME sets the"
+                raise UserError(f"{scene.source}: {e} (names become Zenoh keys; --world NAME sets the"
                                   " world)") from None
 
             if connect:

@@ -22,6 +22,8 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
+from ..errors import UserError
+
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 
 
@@ -99,13 +101,10 @@ def _session(args: argparse.Namespace) -> Iterator[Any]:
         with open_session(conf) as s:
             yield s
     except BusError as e:
-        from ..cli import UserError
-
         raise UserError(f"zenoh: {e}") from None
 
 
 def _world(s: Any, args: argparse.Namespace) -> str:
-    from ..cli import UserError
     from .zenoh_backend import BackendError, discover_world
 
     if args.world:
@@ -129,7 +128,6 @@ def _wait_for_signal() -> None:
 
 def cmd_driver(args: argparse.Namespace) -> int:
     from ..bus.keys import Keys
-    from ..cli import UserError
     from .zenoh_backend import query_info
     from .zenoh_host import DriverHost
 
@@ -166,7 +164,6 @@ def cmd_driver(args: argparse.Namespace) -> int:
 
 def _serve(args: argparse.Namespace, what: str, start: Any) -> int:
     """Run `start(backend) -> (service, where)` on the simulated modem args.id until a signal."""
-    from ..cli import UserError
     from .zenoh_backend import BackendError, ZenohBackend
 
     _log()
@@ -204,7 +201,6 @@ def cmd_emulate(args: argparse.Namespace) -> int:
 
 def _emulate_serial(args: argparse.Namespace) -> int:
     """`emulate serial`: a pty whose other end speaks dccomms frames, on simulated modem args.id."""
-    from ..cli import UserError
     from .emulators import SerialRadioEmulator
 
     link = args.link
@@ -225,8 +221,6 @@ def _emulate_serial(args: argparse.Namespace) -> int:
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:
-    from ..cli import UserError
-
     def start(be: Any) -> tuple[Any, str]:
         if args.bridge == "socket":
             from ..bridges.socket_bridge import SocketBridge
@@ -247,7 +241,6 @@ def cmd_bridge(args: argparse.Namespace) -> int:
 
 def cmd_vehicles(args: argparse.Namespace) -> int:
     from ..bus.kinematic import KinematicRunner
-    from ..cli import UserError
     from ..mobility.kinematic import KinematicVehicle
 
     _log()
