@@ -10,6 +10,8 @@ import signal
 import sys
 from pathlib import Path
 
+from ..errors import UserError
+
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m uwsimnet_zenoh.experiments")
@@ -44,6 +46,9 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, interrupt)     # like Ctrl-C: the child processes are stopped, not orphaned
     try:
         experiment.run(out, **kw)
+    except UserError as e:
+        print(e, file=sys.stderr)
+        return 2
     except RuntimeError as e:                    # a child process failed: its log tail says why
         print(f"uwsimnet-experiments: {e}", file=sys.stderr)
         return 1

@@ -21,6 +21,7 @@ few per cent of a core), so a 240 s experiment takes about 4 minutes.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import json
 import re
 import time
@@ -28,7 +29,10 @@ from pathlib import Path
 from typing import Any
 
 from ..bus import codec
-from ..bus.keys import parse
+from ..bus.clock import WorldClock
+from ..bus.keys import Keys, parse
+from ..bus.session import make_config, open_session
+from ..errors import UserError
 from ..trace.report import read_trace
 from . import hil_formation as h
 from .processes import PY, ProcessError, Processes
@@ -69,13 +73,13 @@ class Recorder:
     """Every vehicle's latest pose per world (Zenoh callback) and Fig. 9's errors sampled every TICK s of
     that world's simulation time."""
 
-    def __init__(self, session: Any, worlds: dict[str, Any], until: float) -> None:
+    def __init__(self, session: Any, worlds: dict[str, str], until: float) -> None:
         self.until = until
-        self.worlds = worlds                                  # mac -> uwsimnet_gli.World
+        self.clocks = {mac: WorldClock(session, Keys(w)) for mac, w in worlds.items()}   # mac -> world name
         self.poses: dict[str, dict[str, h.Vec]] = {mac: {} for mac in worlds}
         self.res = {mac: {"mac": mac, "t": [], "error": {n: [] for n in h.VEHICLES}} for mac in worlds}
         self._next = dict.fromkeys(worlds, 0.0)
-        by_world = {w.name: mac for mac, w in worlds.items()}
+        by_world = {w: mac for mac, w in worlds.items()}
 
         def on_pose(sample: Any) -> None:
             k = parse(sample.key_expr)
@@ -89,8 +93,8 @@ class Recorder:
     def sample(self) -> float:
         """Record what is due; the least simulation time over the worlds."""
         least = float("inf")
-        for mac, w in self.worlds.items():
-            t = w.sim_time(timeout=0)
+        for mac, clock in self.clocks.items():
+            t = clock.now()
             if t is None:                                    # no clock sample yet
                 least = 0.0
                 continue
@@ -108,6 +112,8 @@ class Recorder:
         return least
 
     def close(self) -> None:
+        for c in self.clocks.values():
+            c.close()
         with contextlib.suppress(Exception):
             self._sub.undeclare()
 
@@ -116,15 +122,17 @@ def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: 
     """Run both MACs in real time (about `duration` / `speed` s plus start-up; `speed` > 1 is for runs
     without hardware: every process follows the worlds' clocks); Fig. 9, summary.md/json in `out`."""
     from rich.progress import Progress
-    from uwsimnet_gli import World
 
+    if importlib.util.find_spec("uwsimnet_gli") is None:      # the apps are uwsimnet_gli clients
+        raise UserError("hil-formation: the applications need the uwsimnet_gli client: pip install -e"
+                        " gli_clients/python (make does it)")
     out.mkdir(parents=True, exist_ok=True)
     with Processes(out / "logs") as procs:
         router = procs.start("router", _uwsimnet("router", "--listen", "tcp/127.0.0.1:0"), ready="listening on")
         endpoint = re.search(r"tcp/127\.0\.0\.1:\d+", router.output()).group(0)      # the port it was given
         worlds = {mac: start_world(procs, mac, endpoint, out, duration, speed) for mac in h.PROTOCOLS}
-        with World(worlds["aloha"], connect=endpoint) as wa, World(worlds["sfama"], connect=endpoint) as ws:
-            rec = Recorder(wa.session, {"aloha": wa, "sfama": ws}, duration)
+        with open_session(make_config("client", connect=[endpoint])) as session:
+            rec = Recorder(session, worlds, duration)
             try:
                 with Progress(transient=True) as bar:
                     task = bar.add_task("HIL formation, real time", total=duration)
