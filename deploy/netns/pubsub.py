@@ -48,7 +48,7 @@ def pub(conf: zenoh.Config, key: str, n: int, ready_file: str | None) -> int:
                 return 1
             time.sleep(0.05)
     with zenoh.open(conf) as s:
-        p = s.declare_publisher(key)
+        p = s.declare_publisher(key, express=True)     # each put leaves at once, no batching
         while not p.matching_status.matching:
             if time.monotonic() > deadline:
                 print("timeout: no subscriber matched", file=sys.stderr)
@@ -56,7 +56,7 @@ def pub(conf: zenoh.Config, key: str, n: int, ready_file: str | None) -> int:
             time.sleep(0.05)
         for i in range(n):
             p.put(f"sample {i} from pid {os.getpid()}")
-        time.sleep(0.2)  # let the last samples leave before the session closes
+        time.sleep(1.0)  # let the samples cross three routers before the session closes (0.2 s lost them once)
     return 0
 
 
