@@ -6,17 +6,17 @@ STAMP := $(VENV)/.installed
 
 .PHONY: paper test lint bench clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml gli_clients/python/pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) on PATH (or make PY=python3)"; exit 2; }
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[dev]'
 	$(BIN)/pip install -q -e gli_clients/python
+	$(BIN)/pip install -q -e '.[dev]'
 	@touch $(STAMP)
 
 ## The paper's physical-layer experiment (Section 3.1): trace, report and figures in out/phy-layer/
 paper: $(STAMP)
-	$(BIN)/python -m uwsimnet_zenoh.experiments phy-layer --out out/phy-layer
+	$(BIN)/uwsimnet experiment phy-layer --out out/phy-layer
 
 ## The test suite (what CI runs)
 test: $(STAMP)

@@ -127,8 +127,8 @@ def role_ticker(endpoint: str, rate: float) -> None:
     """The floor: the same realtime clock and an embedded router, but no simulation: events at
     scheduled times put {t, epoch} on `bench/tick` (what a broker does at a frame's delivery time)."""
     sys.path.insert(0, str(ROOT))
-    from uwsimnet_zenoh.engine.realtime import RealtimeClock
-    from uwsimnet_zenoh.engine.scheduler import Scheduler
+    from uwsimnet_zenoh.kernel.realtime import RealtimeClock
+    from uwsimnet_zenoh.kernel.scheduler import Scheduler
 
     sys.setswitchinterval(0.0005)
     c = zenoh.Config()

@@ -14,7 +14,6 @@ from hypothesis import HealthCheck, settings
 from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.scene.model import Channel, Device, ErrorModel, Flow, MacSpec, Scene, Simulation, Vehicle
 
-
 # Hypothesis on a loaded 2-core CI machine: the same number of examples and the same checks on the data, but no
 # check that measures the machine's speed (the per-example deadline and "input generation is slow").
 settings.register_profile("uwsimnet", deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -24,10 +24,10 @@ from typing import Any
 import msgpack
 import pytest
 
-from uwsimnet_zenoh.bus.runtime import parse_external, select_channels
-from uwsimnet_zenoh.cli import build_parser, default_clock
+from uwsimnet_zenoh.analysis import analyse, read_trace
+from uwsimnet_zenoh.app.realtime import parse_external, select_channels
+from uwsimnet_zenoh.cli.main import build_parser, default_clock
 from uwsimnet_zenoh.scene.load import load_scene_text
-from uwsimnet_zenoh.trace.report import analyse, read_trace
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
@@ -540,7 +540,7 @@ def test_select_channels_and_external_flows():
 
 def test_run_refuses_a_device_split_between_brokers(tmp_path, capsys):
     """A device whose tx and rx channels would live in different brokers: one line, exit 2, no Zenoh."""
-    from uwsimnet_zenoh.cli import main
+    from uwsimnet_zenoh.cli.main import main
 
     scene = tmp_path / "cross.xml"
     scene.write_text(scene_xml(channels=(0, 1), vehicles=vehicle_xml(

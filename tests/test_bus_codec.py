@@ -1,4 +1,4 @@
-"""msgpack codecs with validation (bus/codec.py), and the client's encoding against them."""
+"""The msgpack codecs of the one wire (uwsimnet_gli/wire.py), with validation, and the client's records."""
 
 from __future__ import annotations
 
@@ -8,20 +8,19 @@ import msgpack
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from uwsimnet_zenoh.bus import codec
-from uwsimnet_zenoh.bus.codec import CodecError
+from uwsimnet_gli import wire
+from uwsimnet_gli.wire import CodecError
 
 
 def test_tx_roundtrip():
-    r = codec.decode_tx(codec.encode_tx(2, b"hello", tag=7))
+    r = wire.decode_tx(wire.encode_tx(2, b"hello", tag=7))
     assert (r.dst, r.data, r.tag, r.flow) == (2, b"hello", 7, None)
-    r = codec.decode_tx(codec.encode_tx(255, b"", flow="f1"))
+    r = wire.decode_tx(wire.encode_tx(255, b"", flow="f1"))
     assert (r.dst, r.data, r.tag, r.flow) == (255, b"", None, "f1")
 
 
 def test_tx_ignores_unknown_keys_and_nil_tag():
-    r = codec.decode_tx(msgpack.packb({"dst": 1, "data": b"x", "tag": None, "future": [1, 2]}))
+    r = wire.decode_tx(msgpack.packb({"dst": 1, "data": b"x", "tag": None, "future": [1, 2]}))
     assert r.tag is None and r.data == b"x"
 
 
@@ -48,33 +47,33 @@ def test_tx_ignores_unknown_keys_and_nil_tag():
 ])
 def test_tx_refusals(msg, reason):
     with pytest.raises(CodecError) as e:
-        codec.decode_tx(msg)
+        wire.decode_tx(msg)
     assert e.value.reason == reason
 
 
 def test_tx_refusal_keeps_a_readable_tag():
     with pytest.raises(CodecError) as e:
-        codec.decode_tx(msgpack.packb({"dst": "x", "data": b"", "tag": 42}))
+        wire.decode_tx(msgpack.packb({"dst": "x", "data": b"", "tag": 42}))
     assert e.value.tag == 42
 
 
 def test_tx_too_large_is_refused_before_decoding():
-    big = codec.encode_tx(1, bytes(codec.MAX_TX_MESSAGE))
+    big = wire.encode_tx(1, bytes(wire.MAX_TX_MESSAGE))
     with pytest.raises(CodecError) as e:
-        codec.decode_tx(big)
+        wire.decode_tx(big)
     assert e.value.reason == "toolarge"
-    assert codec.decode_tx(big, limit=len(big)).data == bytes(codec.MAX_TX_MESSAGE)
+    assert wire.decode_tx(big, limit=len(big)).data == bytes(wire.MAX_TX_MESSAGE)
 
 
 def test_deep_nesting_is_malformed_not_a_crash():
     with pytest.raises(CodecError):
-        codec.decode_tx(b"\x91" * 5000 + b"\x00")
+        wire.decode_tx(b"\x91" * 5000 + b"\x00")
 
 
 @settings(max_examples=300)
 @given(st.binary(max_size=200))
 def test_random_bytes_only_raise_codec_errors(raw):
-    for dec in (codec.decode_tx, codec.decode_pose, codec.decode_status, codec.decode_rx, codec.decode_request):
+    for dec in (wire.decode_tx, wire.decode_pose, wire.decode_status, wire.decode_rx, wire.decode_request):
         with contextlib.suppress(CodecError):
             dec(raw)
 
@@ -90,7 +89,7 @@ values = st.recursive(st.none() | st.booleans() | st.integers(-2**63, 2**64 - 1)
                        max_size=6))
 def test_wrong_types_only_raise_codec_errors(m):
     raw = msgpack.packb(m, use_bin_type=True)
-    for dec in (codec.decode_tx, codec.decode_pose, codec.decode_request):
+    for dec in (wire.decode_tx, wire.decode_pose, wire.decode_request):
         try:
             dec(raw)
         except CodecError as e:
@@ -98,40 +97,45 @@ def test_wrong_types_only_raise_codec_errors(m):
 
 
 def test_rx_and_status_roundtrip():
-    f = codec.decode_rx(codec.encode_rx(1, 2, b"abc", 5, 1.25, 1.5))
+    f = wire.decode_rx(wire.encode_rx(1, 2, b"abc", 5, 1.25, 1.5))
     assert (f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx) == (1, 2, b"abc", 5, 1.25, 1.5)
-    raw = codec.encode_status(9, "dropped", "fifo", 3.0)
+    raw = wire.encode_status(9, "dropped", "fifo", 3.0)
     assert msgpack.unpackb(raw) == {"tag": 9, "event": "dropped", "reason": "fifo", "t": 3.0}
-    s = codec.decode_status(raw)
+    s = wire.decode_status(raw)
     assert (s.tag, s.event, s.reason, s.t) == (9, "dropped", "fifo", 3.0)
-    assert list(msgpack.unpackb(codec.encode_rx(1, 2, b"", 0, 0, 0))) == ["src", "dst", "data", "seq", "t_tx", "t_rx"]
+    assert list(msgpack.unpackb(wire.encode_rx(1, 2, b"", 0, 0, 0))) == ["src", "dst", "data", "seq", "t_tx", "t_rx"]
 
 
 def test_pose():
-    p = codec.decode_pose(codec.encode_pose((1, 2, 3), t=4.0, v=(0.5, 0, 0), q=(0, 0, 0, 1)))
+    p = wire.decode_pose(wire.encode_pose((1, 2, 3), t=4.0, v=(0.5, 0, 0), q=(0, 0, 0, 1)))
     assert p.p == (1.0, 2.0, 3.0) and p.t == 4.0 and p.v == (0.5, 0.0, 0.0) and p.q == (0.0, 0.0, 0.0, 1.0)
-    assert codec.decode_pose(msgpack.packb({"p": [1, 2, 3]})).v is None
+    assert wire.decode_pose(msgpack.packb({"p": [1, 2, 3]})).v is None
     for bad in ({"p": [1, 2]}, {"p": [1, 2, float("nan")]}, {"p": [1, 2, "3"]}, {}, {"p": [1, 2, 3], "v": [1]},
                 {"p": [1, 2, 3], "t": "now"}, {"p": [True, 2, 3]}):
         with pytest.raises(CodecError):
-            codec.decode_pose(msgpack.packb(bad))
+            wire.decode_pose(msgpack.packb(bad))
 
 
 def test_request():
-    assert codec.decode_request(None) == {} and codec.decode_request(b"") == {}
-    assert codec.decode_request(codec.pack({"vehicle": "a"})) == {"vehicle": "a"}
+    assert wire.decode_request(None) == {} and wire.decode_request(b"") == {}
+    assert wire.decode_request(wire.pack({"vehicle": "a"})) == {"vehicle": "a"}
     with pytest.raises(CodecError):
-        codec.decode_request(codec.pack({1: 2}))
+        wire.decode_request(wire.pack({1: 2}))
 
 
-def test_client_wire_matches_the_broker_codec():
-    gli = pytest.importorskip("uwsimnet_gli._wire")
-    r = codec.decode_tx(gli.encode_tx(3, b"zz", 11, "flowA"))
-    assert (r.dst, r.data, r.tag, r.flow) == (3, b"zz", 11, "flowA")
-    p = codec.decode_pose(gli.encode_pose((1, 2, 3), v=(1, 0, 0), t=2.0))
-    assert p.p == (1.0, 2.0, 3.0) and p.v == (1.0, 0.0, 0.0)
-    f = gli.decode_rx(codec.encode_rx(1, 2, b"d", 3, 0.5, 0.75), "m")
+def test_encoders_refuse_what_the_decoders_would():
+    with pytest.raises(ValueError, match="dst must be an address"):
+        wire.encode_tx(70000, b"")
+    with pytest.raises(ValueError, match="p must have 3 components"):
+        wire.encode_pose((1, 2))
+
+
+def test_client_records_read_the_wire_leniently():
+    from uwsimnet_gli import records
+
+    f = records.read_rx(wire.encode_rx(1, 2, b"d", 3, 0.5, 0.75), "m")
     assert (f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, f.modem) == (1, 2, b"d", 3, 0.5, 0.75, "m")
-    s = gli.decode_status(codec.encode_status(None, "queued", None, 1.0))
+    s = records.read_status(wire.encode_status(None, "queued", None, 1.0))
     assert (s.tag, s.event, s.reason, s.t) == (None, "queued", None, 1.0)
-    assert gli.decode_rx(b"\xc1") is None and gli.decode_status(b"junk") is None
+    assert records.read_rx(b"\xc1") is None and records.read_status(b"junk") is None
+    assert records.read_map(wire.pack({"a": 1})) == {"a": 1} and records.read_map(b"\xc1") is None

@@ -1,4 +1,4 @@
-"""The key space of DESIGN.md: builders, wildcards, parser (bus/keys.py)."""
+"""The key space of DESIGN.md: builders, wildcards, parser (uwsimnet_gli/wire.py)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,7 @@ import pytest
 import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
-
-from uwsimnet_zenoh.bus.keys import Key, KeyNameError, Keys, check_chunk, is_chunk, modem_id, parse
+from uwsimnet_gli.wire import Key, KeyNameError, Keys, check_chunk, is_chunk, modem_id, parse
 
 K = Keys("lab")
 

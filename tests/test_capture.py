@@ -12,10 +12,10 @@ import math
 import pytest
 from conftest import Recorded
 
+from uwsimnet_zenoh.engine.build import build_error_model
 from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.experiments import capture as C
 from uwsimnet_zenoh.phy.acoustic import thorp_db_per_km
-from uwsimnet_zenoh.phy.acoustic_build import build_error_model
 from uwsimnet_zenoh.phy.interference import classify, max_interference, min_sinr_db
 from uwsimnet_zenoh.scene.model import (
     AcousticChannelSpec,

@@ -10,7 +10,8 @@ from typing import Any
 
 import pytest
 
-from uwsimnet_zenoh.bus import deploy
+from uwsimnet_zenoh.cli import main as cli_main
+from uwsimnet_zenoh.deploy import render as deploy
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "deploy" / "inventory.example.toml"
@@ -170,15 +171,15 @@ def test_cert_specs() -> None:
 
 def test_cli_render_keeps_passwords(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "out"
-    assert deploy.main(["render", str(EXAMPLE), "-o", str(out)]) == 0
+    assert cli_main(["deploy", "render", str(EXAMPLE), "-o", str(out)]) == 0
     first = (out / "passwords.txt").read_text()
-    assert deploy.main(["render", str(EXAMPLE), "-o", str(out)]) == 0
+    assert cli_main(["deploy", "render", str(EXAMPLE), "-o", str(out)]) == 0
     assert (out / "passwords.txt").read_text() == first
-    assert deploy.main(["certs", str(EXAMPLE), str(tmp_path / "tls")]) == 0
+    assert cli_main(["deploy", "certs", str(EXAMPLE), str(tmp_path / "tls")]) == 0
     assert "make-certs.sh" in capsys.readouterr().out
     bad = tmp_path / "bad.toml"
     bad.write_text("hosts = 3\n")
-    assert deploy.main(["render", str(bad), "-o", str(out)]) == 2
+    assert cli_main(["deploy", "render", str(bad), "-o", str(out)]) == 2
     assert "bad.toml" in capsys.readouterr().err
 
 

@@ -10,7 +10,7 @@ import pytest
 from conftest import Recorded, device, scene, vehicle
 
 from uwsimnet_zenoh.engine.network import Network
-from uwsimnet_zenoh.engine.scheduler import Scheduler
+from uwsimnet_zenoh.kernel.scheduler import Scheduler
 from uwsimnet_zenoh.mobility.trajectory import PoseTable, Trajectory
 
 

@@ -20,7 +20,7 @@ from test_broker_e2e import (  # noqa: F401 - procs is a fixture
     vehicle_xml,
 )
 
-from uwsimnet_zenoh.trace.report import analyse, read_trace
+from uwsimnet_zenoh.analysis import analyse, read_trace
 
 WAIT = 10.0
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from uwsimnet_zenoh.cli import _load, run_virtual
+from uwsimnet_zenoh.app.virtual import load_scene_file, run_virtual
 
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = json.loads((Path(__file__).parent / "golden_traces.json").read_text())
@@ -26,7 +26,7 @@ def test_every_scene_has_a_golden_hash():
 
 @pytest.mark.parametrize("scene, seed", CASES)
 def test_trace_is_byte_identical(scene, seed, tmp_path):
-    sc = _load(str(ROOT / scene))
+    sc = load_scene_file(str(ROOT / scene))
     duration = min(sc.simulation.duration or GOLDEN["duration_cap_s"], GOLDEN["duration_cap_s"])
     out = tmp_path / "t.jsonl"
     run_virtual(sc, seed=int(seed), duration=duration, trace_path=out, progress=False)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from uwsimnet_zenoh.experiments import hil_formation as h
+from uwsimnet_zenoh.experiments import hil_formation
+from uwsimnet_zenoh.experiments import hil_spec as h
 from uwsimnet_zenoh.scene.load import load_scene
 
 
@@ -17,7 +18,7 @@ def test_scene_files_match_the_generator():
 
 
 def test_formation_converges_with_both_macs(tmp_path: Path):
-    stats = h.run(tmp_path, duration=110.0)          # two waypoint changes
+    stats = hil_formation.run(tmp_path, duration=110.0)          # two waypoint changes
     assert (tmp_path / "fig9-hil-formation.png").stat().st_size > 10_000
     for mac in h.PROTOCOLS:
         st = stats[mac]

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from uwsimnet_zenoh.experiments import hil_formation as h
+from uwsimnet_zenoh.analysis import conservation
+from uwsimnet_zenoh.experiments import hil_spec as spec
 from uwsimnet_zenoh.experiments.hil_apps import Follower, Goto, Leader, Send, first_due, make_app
-from uwsimnet_zenoh.trace.report import conservation
 
 pytest.importorskip("uwsimnet_gli")
 DURATION = 34.0
@@ -26,15 +26,15 @@ def test_apps_are_plain_state_machines():
     op, leader, f1 = make_app("operator"), make_app("leader"), make_app("follower1")
     assert isinstance(leader, Leader) and isinstance(f1, Follower)
     [w] = op.on_timer(20.0, None)
-    assert w.dst == h.VEHICLES["leader"][0] and len(w.data) == h.PAYLOAD
-    assert leader.on_frame(5, w.data) == [Goto((6.0, 0.0, h.DEPTH))]
+    assert w.dst == spec.VEHICLES["leader"][0] and len(w.data) == spec.PAYLOAD
+    assert leader.on_frame(5, w.data) == [Goto((6.0, 0.0, spec.DEPTH))]
     assert leader.on_frame(5, w.data) == []                      # the same waypoint again: no new command
     [p] = leader.on_timer(22.05, (1.0, 2.0, -5.0))
     assert p.dst == 255
-    assert f1.on_frame(1, p.data) == [Goto((1.0 - h.SIDE, 2.0, -5.0))]
-    assert f1.on_frame(1, b"X" * h.PAYLOAD) == [] and f1.on_frame(1, b"") == []
+    assert f1.on_frame(1, p.data) == [Goto((1.0 - spec.SIDE, 2.0, -5.0))]
+    assert f1.on_frame(1, b"X" * spec.PAYLOAD) == [] and f1.on_frame(1, b"") == []
     [t] = f1.on_timer(0.3, (0.0, 0.0, 0.0))
-    assert isinstance(t, Send) and t.dst == h.OPERATOR[1] and t.data[:1] == b"T"
+    assert isinstance(t, Send) and t.dst == spec.OPERATOR[1] and t.data[:1] == b"T"
     assert f1.on_timer(5.3, None) == []                         # no pose yet: nothing to report
     assert first_due(leader, 0.0) == 0.05 and first_due(leader, 3.0) == pytest.approx(4.05)
     assert first_due(op, 8.0) == 8.0
@@ -43,8 +43,9 @@ def test_apps_are_plain_state_machines():
 
 
 def test_formation_errors_follow_the_papers_definition():
-    poses = {"leader": (3.0, 0.0, h.DEPTH), "follower1": (1.5, 0.0, h.DEPTH), "follower2": (3.0, -2.5, h.DEPTH)}
-    e = h.formation_errors(25.0, poses)
+    d = spec.DEPTH
+    poses = {"leader": (3.0, 0.0, d), "follower1": (1.5, 0.0, d), "follower2": (3.0, -2.5, d)}
+    e = spec.formation_errors(25.0, poses)
     assert e["leader"] == pytest.approx(3.0)             # commanded (6, 0) since 20 s
     assert e["follower1"] == pytest.approx(0.0)          # exactly at leader + (-1.5, 0)
     assert e["follower2"] == pytest.approx(1.0)
@@ -53,27 +54,27 @@ def test_formation_errors_follow_the_papers_definition():
 
 def test_one_command_runs_the_hil_experiment_as_processes(tmp_path: Path):
     out = tmp_path / "hil"
-    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.experiments", "hil-formation",
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "experiment", "hil-formation",
                         "--duration", f"{DURATION:g}", "--out", str(out)],
                        capture_output=True, text=True, timeout=DURATION + 120)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert (out / "fig9-hil-formation.png").stat().st_size > 20_000
     logs = out / "logs"
-    for mac in h.PROTOCOLS:
-        for part in ("broker", "vehicles", "robot", "operator", *h.VEHICLES):
+    for mac in spec.PROTOCOLS:
+        for part in ("broker", "vehicles", "robot", "operator", *spec.VEHICLES):
             assert (logs / f"{mac}-{part}.log").exists(), (mac, part)
         # the apps' own counts: each received frames from another process through its world's broker
-        for name in ("operator", *h.VEHICLES):
+        for name in ("operator", *spec.VEHICLES):
             last = (logs / f"{mac}-{name}.log").read_text().strip().splitlines()[-1]
             assert "received" in last and int(last.rsplit(" ", 1)[1]) > 0, (mac, name, last)
         assert not conservation(out / f"{mac}.trace.jsonl"), mac
     s = json.loads((out / "summary.json").read_text())
-    for mac in h.PROTOCOLS:
+    for mac in spec.PROTOCOLS:
         rt, model = s["realtime"][mac], s["virtual"][mac]
         assert rt["delivery"]["waypoints"] > 0.8, (mac, rt["delivery"])
         # the leader got the 20 s waypoint (6 m away) and drove towards it at up to 0.3 m/s
         assert 6.0 - 0.3 * (DURATION - 20) - 0.3 < rt["leader"]["final"] < 5.0, (mac, rt["leader"])
-        for n in h.VEHICLES:
+        for n in spec.VEHICLES:
             assert abs(rt[n]["mean"] - model[n]["mean"]) < 0.3, (mac, n, rt[n], model[n])
             if n != "leader":
                 assert rt[n]["max"] < 2.5, (mac, n, rt[n])   # formation kept: within ~one leg update
@@ -88,7 +89,7 @@ def test_sigterm_stops_every_process(tmp_path: Path):
     import time
 
     out = tmp_path / "hil"
-    p = subprocess.Popen([sys.executable, "-m", "uwsimnet_zenoh.experiments", "hil-formation", "--duration", "60",
+    p = subprocess.Popen([sys.executable, "-m", "uwsimnet_zenoh.cli", "experiment", "hil-formation", "--duration", "60",
                           "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         last = out / "logs" / "sfama-follower3.log"              # the last process started

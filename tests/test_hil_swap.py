@@ -213,12 +213,11 @@ def test_swap_in_out_and_kill9(broker):
 
 
 def test_status_seq_round_trip():
-    from uwsimnet_gli._wire import decode_status as gli_decode
+    from uwsimnet_gli import wire
+    from uwsimnet_gli.records import read_status as gli_decode
 
-    from uwsimnet_zenoh.bus import codec
-
-    raw = codec.encode_status(7, "dropped", "swapped", 1.5, seq=42)
-    assert codec.decode_status(raw) == codec.Status(7, "dropped", "swapped", 1.5, 42)
+    raw = wire.encode_status(7, "dropped", "swapped", 1.5, seq=42)
+    assert wire.decode_status(raw) == wire.Status(7, "dropped", "swapped", 1.5, 42)
     assert gli_decode(raw).seq == 42
-    old = codec.encode_status(7, "sent", None, 1.5)                    # no seq: still valid, seq None
-    assert codec.decode_status(old).seq is None and gli_decode(old).seq is None
+    old = wire.encode_status(7, "sent", None, 1.5)                    # no seq: still valid, seq None
+    assert wire.decode_status(old).seq is None and gli_decode(old).seq is None

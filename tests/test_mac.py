@@ -8,13 +8,13 @@ from pathlib import Path
 import pytest
 from conftest import Recorded, device, scene, vehicle
 
-from uwsimnet_zenoh.mac import base
+from uwsimnet_zenoh.analysis import analyse
+from uwsimnet_zenoh.mac import registry as base
 from uwsimnet_zenoh.mac.aloha import CsAloha, SlottedAloha
 from uwsimnet_zenoh.mac.examples import Tdma
 from uwsimnet_zenoh.mac.nomac import NoMac
 from uwsimnet_zenoh.mac.sfama import SFama
 from uwsimnet_zenoh.scene.model import Flow
-from uwsimnet_zenoh.trace.report import analyse
 
 C = 1500.0
 
@@ -75,7 +75,7 @@ def test_registry_entry_point_and_errors(monkeypatch):
     with pytest.raises(ValueError, match="cannot load"):
         base.resolve("no.such.module:Mac")
     with pytest.raises(ValueError, match="not a subclass"):
-        base.resolve("uwsimnet_zenoh.phy.frame:Frame")
+        base.resolve("uwsimnet_zenoh.kernel.frame:Frame")
 
 
 @pytest.mark.parametrize("mac,params,msg", [
@@ -409,13 +409,13 @@ def test_twinbot_reproduces_the_papers_findings(tmp_path):
 
 
 def test_twinbot_choice_in_the_experiments_cli(tmp_path, monkeypatch, capsys):
+    from uwsimnet_zenoh.cli import main
     from uwsimnet_zenoh.experiments import twinbot
-    from uwsimnet_zenoh.experiments.__main__ import main
 
     def fake_run(out, **kw):
         (out / "summary.md").write_text("# fake summary\n")
 
     (tmp_path / "o").mkdir()
     monkeypatch.setattr(twinbot, "run", fake_run)
-    assert main(["twinbot", "--out", str(tmp_path / "o")]) == 0
+    assert main(["experiment", "twinbot", "--out", str(tmp_path / "o")]) == 0
     assert "# fake summary" in capsys.readouterr().out

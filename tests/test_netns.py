@@ -50,7 +50,7 @@ def hosts() -> Iterator[Hosts]:
 
 
 def test_pubsub_across_three_hosts(hosts: Hosts, tmp_path: Path) -> None:
-    from uwsimnet_zenoh.bus import deploy
+    from uwsimnet_zenoh.deploy import render as deploy
 
     hosts.run("up", "3")
     assert sorted(_namespaces(hosts.prefix)) == sorted(f"{hosts.prefix}-{n}" for n in ("sw", "h1", "h2", "h3"))

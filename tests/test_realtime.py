@@ -1,4 +1,4 @@
-"""The realtime clock (engine/realtime.py): wall-time events, the thread-safe inbox, pause, speed, stop.
+"""The realtime clock (kernel/realtime.py): wall-time events, the thread-safe inbox, pause, speed, stop.
 
 Bounds on timing are generous (tens of ms) so a loaded CI machine does not fail them; the precise
 figures are in bench/bench_realtime.py and docs/benchmarks.md."""
@@ -12,8 +12,8 @@ import pytest
 from conftest import device, scene, vehicle
 
 from uwsimnet_zenoh.engine.network import Network
-from uwsimnet_zenoh.engine.realtime import RealtimeClock, run_for
-from uwsimnet_zenoh.engine.scheduler import Scheduler
+from uwsimnet_zenoh.kernel.realtime import RealtimeClock, run_for
+from uwsimnet_zenoh.kernel.scheduler import Scheduler
 
 SLACK = 0.05     # s: what a loaded machine may add
 

@@ -8,8 +8,7 @@ from pathlib import Path
 import pytest
 from rich.table import Table
 
-from uwsimnet_zenoh.trace.plot import compare_markdown, compare_table, plot_compare, plot_trace
-from uwsimnet_zenoh.trace.report import (
+from uwsimnet_zenoh.analysis import (
     Conservation,
     TraceError,
     analyse,
@@ -21,6 +20,7 @@ from uwsimnet_zenoh.trace.report import (
     read_trace,
     report_json,
 )
+from uwsimnet_zenoh.analysis.figures import compare_markdown, compare_table, plot_compare, plot_trace
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

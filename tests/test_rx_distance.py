@@ -19,11 +19,9 @@ import pytest
 
 pytest.importorskip("uwsimnet_gli")
 from test_broker_e2e import Broker  # noqa: E402
-from uwsimnet_gli import World  # noqa: E402
-from uwsimnet_gli import _wire as gli  # noqa: E402
+from uwsimnet_gli import World, records, wire  # noqa: E402
+from uwsimnet_gli.wire import Keys  # noqa: E402
 
-from uwsimnet_zenoh.bus import codec  # noqa: E402
-from uwsimnet_zenoh.bus.keys import Keys  # noqa: E402
 from uwsimnet_zenoh.bus.session import make_config, open_session  # noqa: E402
 from uwsimnet_zenoh.drivers.backend import BackendFrame, link_metrics  # noqa: E402
 from uwsimnet_zenoh.drivers.emulators import EvoLogicsEmulator  # noqa: E402
@@ -57,28 +55,28 @@ SCENE = f"""<?xml version="1.0"?>
 
 # -- codec -----------------------------------------------------------------------------------------
 def test_codec_rx_round_trip_with_and_without_dist():
-    f = codec.decode_rx(codec.encode_rx(1, 2, b"abc", 5, 1.25, 1.5, 499.75))
+    f = wire.decode_rx(wire.encode_rx(1, 2, b"abc", 5, 1.25, 1.5, 499.75))
     assert (f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, f.dist) == (1, 2, b"abc", 5, 1.25, 1.5, 499.75)
-    assert isinstance(codec.decode_rx(codec.encode_rx(1, 2, b"", 0, 0, 0, 7)).dist, float)
-    old = codec.encode_rx(1, 2, b"abc", 5, 1.25, 1.5)                   # an older broker: no dist key
+    assert isinstance(wire.decode_rx(wire.encode_rx(1, 2, b"", 0, 0, 0, 7)).dist, float)
+    old = wire.encode_rx(1, 2, b"abc", 5, 1.25, 1.5)                   # an older broker: no dist key
     assert "dist" not in msgpack.unpackb(old)
-    assert codec.decode_rx(old).dist is None
-    assert codec.decode_rx(codec.encode_rx(1, 2, b"", 0, 0, 0, 0.0)).dist == 0.0
-    g = gli.decode_rx(codec.encode_rx(1, 2, b"d", 3, 0.5, 0.75, 12.5), "m")
+    assert wire.decode_rx(old).dist is None
+    assert wire.decode_rx(wire.encode_rx(1, 2, b"", 0, 0, 0, 0.0)).dist == 0.0
+    g = records.read_rx(wire.encode_rx(1, 2, b"d", 3, 0.5, 0.75, 12.5), "m")
     assert g is not None and g.dist == 12.5 and g.data == b"d"
-    h = gli.decode_rx(old, "m")
+    h = records.read_rx(old, "m")
     assert h is not None and h.dist is None
 
 
 @pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf"), "500", True, [500.0]])
 def test_codec_rx_bad_dist_is_rejected(bad):
-    raw = codec.pack({"src": 1, "dst": 2, "data": b"x", "seq": 0, "t_tx": 0.0, "t_rx": 0.1, "dist": bad})
-    with pytest.raises(codec.CodecError) as e:
-        codec.decode_rx(raw)
+    raw = wire.pack({"src": 1, "dst": 2, "data": b"x", "seq": 0, "t_tx": 0.0, "t_rx": 0.1, "dist": bad})
+    with pytest.raises(wire.CodecError) as e:
+        wire.decode_rx(raw)
     assert e.value.reason == "invalid"
-    assert gli.decode_rx(raw) is None
-    nil = codec.pack({"src": 1, "dst": 2, "data": b"x", "seq": 0, "t_tx": 0.0, "t_rx": 0.1, "dist": None})
-    assert codec.decode_rx(nil).dist is None and gli.decode_rx(nil).dist is None
+    assert records.read_rx(raw) is None
+    nil = wire.pack({"src": 1, "dst": 2, "data": b"x", "seq": 0, "t_tx": 0.0, "t_rx": 0.1, "dist": None})
+    assert wire.decode_rx(nil).dist is None and records.read_rx(nil).dist is None
 
 
 # -- through a broker ------------------------------------------------------------------------------
@@ -135,7 +133,7 @@ def test_zenoh_backend_and_link_metrics_use_the_channel(session, law):
         assert abs(naive.distance - DIST) > 50.0          # the old estimate, visibly wrong here
 
         # an rx without dist (an older broker, a real driver): the fallback, no error
-        session.put(Keys(WORLD).rx("b-m"), codec.encode_rx(1, 2, b"old", 99, 1.0, 1.5))
+        session.put(Keys(WORLD).rx("b-m"), wire.encode_rx(1, 2, b"old", 99, 1.0, 1.5))
         g = got.get(timeout=5)
         while g.data != b"old":
             g = got.get(timeout=5)

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from uwsimnet_zenoh.engine.build import DEFAULT_POWER_W, FixedBerLink
 from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.phy.acoustic import PRESETS, AcousticLink, sound_speed_mackenzie, source_level_db
-from uwsimnet_zenoh.phy.acoustic_build import DEFAULT_POWER_W, FixedBerLink
 from uwsimnet_zenoh.scene import Channel, Device, SceneError, load_scene, load_scene_text
 from uwsimnet_zenoh.scene.model import AcousticChannelSpec, AcousticDeviceSpec
 

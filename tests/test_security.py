@@ -1,7 +1,7 @@
 """TLS, user/password authentication and access control, with real routers (docs/deployment.md).
 
 Two routers (hosts `hb` and `hr`, both on loopback) run in subprocesses with the configurations that
-`uwsimnet_zenoh.bus.deploy` renders from an inventory, and certificates from deploy/tls/make-certs.sh:
+`uwsimnet_zenoh.deploy.render` renders from an inventory, and certificates from deploy/tls/make-certs.sh:
 `hb` through `uwsimnet router --config`, `hr` through a bare `zenoh.open(Config.from_file(...))`.
 Clients (broker, driver, app, visitor) are sessions in this process, on either router: every sample
 between them crosses mutual TLS and the ACL of both routers.
@@ -32,7 +32,7 @@ import pytest
 
 zenoh = pytest.importorskip("zenoh")
 
-from uwsimnet_zenoh.bus import deploy  # noqa: E402
+from uwsimnet_zenoh.deploy import render as deploy  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 MAKE_CERTS = ROOT / "deploy" / "tls" / "make-certs.sh"

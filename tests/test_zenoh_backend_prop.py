@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 from test_broker_e2e import Broker
+from uwsimnet_gli.wire import Keys
 
-from uwsimnet_zenoh.bus.keys import Keys
 from uwsimnet_zenoh.bus.session import make_config, open_session
 from uwsimnet_zenoh.drivers.backend import BackendStatus
 from uwsimnet_zenoh.drivers.zenoh_backend import FALLBACK_SOUND_SPEED, ZenohBackend, prop_law, query_info

@@ -1,6 +1,6 @@
 """The error a command reports as one line with exit code 2 (`uwsimnet`'s `main` catches it).
 
-Its own module, not cli.py: the sub-commands raise it, and `python -m uwsimnet_zenoh.cli` runs cli.py as
+Its own module, not cli/: the sub-commands raise it, and `python -m uwsimnet_zenoh.cli` runs cli as
 `__main__`, a second copy of that module whose class would not match theirs."""
 
 

@@ -177,8 +177,8 @@ demo() {
         printf '[[identities]]\nname = "pub"\nrole = "app"\nhost = "h1"\n'
         printf '[[identities]]\nname = "sub"\nrole = "app"\nhost = "h%s"\n' "$n"
     } >"$work/inventory.toml"
-    (cd "$ROOT" && eval "$("$PY" -m uwsimnet_zenoh.bus.deploy certs "$work/inventory.toml" "$work/tls")") >/dev/null
-    (cd "$ROOT" && "$PY" -m uwsimnet_zenoh.bus.deploy render "$work/inventory.toml" -o "$work/out") >/dev/null
+    (cd "$ROOT" && eval "$("$PY" -m uwsimnet_zenoh.cli deploy certs "$work/inventory.toml" "$work/tls")") >/dev/null
+    (cd "$ROOT" && "$PY" -m uwsimnet_zenoh.cli deploy render "$work/inventory.toml" -o "$work/out") >/dev/null
     routers "$work/out"
     ip netns exec "$(host_ns "$n")" "$PY" "$HERE/pubsub.py" sub "$work/out/h$n/clients/sub.json5" \
         uwsimnet/demo/pose/auv1 3 >"$work/sub.out" 2>&1 &

@@ -4,7 +4,7 @@
     python pubsub.py pub CONFIG KEY N [FILE]   wait until a subscriber matches (and FILE says "ready"),
                                               then put N samples
 
-CONFIG is a client configuration rendered by `python -m uwsimnet_zenoh.bus.deploy`.  Every wait is
+CONFIG is a client configuration rendered by `uwsimnet deploy`.  Every wait is
 bounded (TIMEOUT, default 20 s, from the environment); the session is always closed.
 """
 

@@ -102,8 +102,8 @@ if [ "${TLS:-0}" = 1 ]; then
         printf '[[identities]]\nname = "brk"\nrole = "broker"\nhost = "h1"\n'
         for i in 2 3 4; do printf '[[identities]]\nname = "app%s"\nrole = "app"\nhost = "h%s"\n' "$i" "$i"; done
     } >"$OUT/inventory.toml"
-    eval "$("$PY" -m uwsimnet_zenoh.bus.deploy certs "$OUT/inventory.toml" "$OUT/tls")" >/dev/null
-    "$PY" -m uwsimnet_zenoh.bus.deploy render "$OUT/inventory.toml" -o "$OUT/etc" >/dev/null
+    eval "$("$PY" -m uwsimnet_zenoh.cli deploy certs "$OUT/inventory.toml" "$OUT/tls")" >/dev/null
+    "$PY" -m uwsimnet_zenoh.cli deploy render "$OUT/inventory.toml" -o "$OUT/etc" >/dev/null
     # routers: `uwsimnet router --config` (the file's TLS endpoints, mutual TLS, usrpwd, ACL)
     for i in 1 2 3 4; do                # the hub first: the others connect to it at once
         in_host "$i" "$PY" -m uwsimnet_zenoh.cli router --config "$OUT/etc/h$i/router.json5" \
@@ -209,7 +209,7 @@ n4=$(grep -c '"src": 1' "$OUT/h4/rx.jsonl" || true)
 "$PY" -m uwsimnet_zenoh.cli report "$OUT/h1/trace.jsonl" >"$OUT/h1/report.log" 2>&1 || fail "report failed"
 "$PY" - "$OUT/h1/trace.jsonl" "$SENT" <<'EOF' || fail "trace check failed"
 import sys
-from uwsimnet_zenoh.trace.report import analyse, read_trace
+from uwsimnet_zenoh.analysis import analyse, read_trace
 path, n = sys.argv[1], int(sys.argv[2])
 ev = list(read_trace(path)[1])
 rx = sorted(e["dev"] for e in ev if e["ev"] == "rx")

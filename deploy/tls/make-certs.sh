@@ -14,7 +14,7 @@
 # An existing NAME.pem is kept (delete it, or set FORCE=1, to remake it).  DAYS (default 825) sets the
 # validity.  Keys are written 0600 into OUTDIR: keep OUTDIR out of version control, and copy to each
 # machine only the CA certificate (ca.pem, never ca.key) and that machine's own NAME.pem/NAME.key.
-# `python -m uwsimnet_zenoh.bus.deploy certs INVENTORY` prints the command for an inventory.
+# `uwsimnet deploy certs INVENTORY` prints the command for an inventory.
 set -euo pipefail
 
 die() { echo "make-certs: $*" >&2; exit 2; }

@@ -31,15 +31,16 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 import zenoh
+from uwsimnet_gli import wire
+from uwsimnet_gli.wire import Keys, check_chunk, is_chunk, parse
 
-from ..engine.realtime import Deferred
-from . import codec
-from .keys import Keys, check_chunk, is_chunk, parse
+from ..kernel.realtime import Deferred
+from .control import Control
 
 if TYPE_CHECKING:
     from ..engine.network import Network
-    from ..engine.realtime import RealtimeClock
-    from ..phy.frame import Frame
+    from ..kernel.frame import Frame
+    from ..kernel.realtime import RealtimeClock
     from ..phy.modem import Modem
 
 log = logging.getLogger("uwsimnet.bus.broker")
@@ -95,7 +96,7 @@ class Endpoint:
 class Broker:
     def __init__(self, session: zenoh.Session, net: Network, clock: RealtimeClock, *,
                  world: str | None = None, channels: Iterable[int] | None = None,
-                 tx_limit: int = codec.MAX_TX_MESSAGE, publish_trace: bool = True,
+                 tx_limit: int = wire.MAX_TX_MESSAGE, publish_trace: bool = True,
                  clock_rate_hz: float = 10.0, foreign: Iterable[str] = ()) -> None:
         self.session = session
         self.net = net
@@ -109,7 +110,7 @@ class Broker:
         self.endpoints: dict[str, Endpoint] = {}
         self.real: set[str] = set()
         """Modem ids for which a real driver holds `driver/real`."""
-        self._swapped: dict[str, tuple[str, Any]] = {}
+        self.swapped: dict[str, tuple[str, Any]] = {}
         """Modems handed to a real driver: (vehicle, device config) to put them back when it leaves."""
         self.foreign: set[str] = set(foreign)
         """Modem ids of the scene served by other brokers (their channels are not ours): ignored here."""
@@ -125,7 +126,6 @@ class Broker:
         self._clock_due = False
         self._started = False
         self._closed = False
-        from .control import Control  # noqa: PLC0415 - control imports this module's types
         self.control = Control(self)
 
     # -- lifecycle (main thread, before the clock starts) ----------------------------------------
@@ -227,7 +227,7 @@ class Broker:
 
     def _on_pose_sample(self, sample: zenoh.Sample) -> None:
         pl = sample.payload
-        raw = pl.to_bytes() if len(pl) <= codec.MAX_SMALL_MESSAGE else None
+        raw = pl.to_bytes() if len(pl) <= wire.MAX_SMALL_MESSAGE else None
         self.clock.call_soon(self._handle_pose, str(sample.key_expr), raw)
 
     def _on_info_query(self, query: zenoh.Query) -> None:
@@ -235,7 +235,7 @@ class Broker:
 
     def _on_control_query(self, query: zenoh.Query) -> None:
         pl = query.payload
-        raw = pl.to_bytes() if pl is not None and len(pl) <= codec.MAX_SMALL_MESSAGE else pl
+        raw = pl.to_bytes() if pl is not None and len(pl) <= wire.MAX_SMALL_MESSAGE else pl
         self.clock.call_soon(self._answer_control, query, raw)
 
     def _on_driver_sample(self, sample: zenoh.Sample) -> None:
@@ -250,7 +250,7 @@ class Broker:
         key = reason if ep is None else f"{reason}:{dev}"        # bounded: unknown ids share one key
         self.warn(key, "%s: tx dropped (%s): %s", dev, reason, detail)
         pub = ep.status_pub if ep is not None else None
-        payload = codec.encode_status(tag, "dropped", reason, self.net.sched.now)
+        payload = wire.encode_status(tag, "dropped", reason, self.net.sched.now)
         try:
             if pub is not None:
                 pub.put(payload)
@@ -278,8 +278,8 @@ class Broker:
             self._refuse(dev, "toolarge", f"message of {size} bytes, the limit is {self.tx_limit}", ep=ep)
             return
         try:
-            req = codec.decode_tx(raw, self.tx_limit)
-        except codec.CodecError as e:
+            req = wire.decode_tx(raw, self.tx_limit)
+        except wire.CodecError as e:
             self._refuse(dev, e.reason, e.detail, e.tag, ep)
             return
         m = ep.modem
@@ -295,7 +295,7 @@ class Broker:
         if ep is None:
             return
         data = frame.data if frame.data is not None else bytes(frame.payload)
-        ep.rx_pub.put(codec.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, m.rx_dist))
+        ep.rx_pub.put(wire.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, m.rx_dist))
 
     def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
         tag = frame.tag if isinstance(frame.tag, int) and not isinstance(frame.tag, bool) else None
@@ -304,18 +304,18 @@ class Broker:
             if event == "dropped" and reason == "removed":
                 reason = "swapped"
             with contextlib.suppress(Exception):
-                self.session.put(self.keys.status(m.id), codec.encode_status(tag, event, reason, t, frame.seq),
+                self.session.put(self.keys.status(m.id), wire.encode_status(tag, event, reason, t, frame.seq),
                                  congestion_control=BLOCK)
             return
         ep = self.serving(m.id)
         if ep is None or ep.modem is not m:
             return
-        ep.status_pub.put(codec.encode_status(tag, event, reason, t, frame.seq))
+        ep.status_pub.put(wire.encode_status(tag, event, reason, t, frame.seq))
 
     def _trace_sink(self, rec: dict) -> None:
         pub = self._trace_pubs.get(rec["ch"])
         if pub is not None:
-            pub.put(codec.pack(rec))
+            pub.put(wire.pack(rec))
 
     def _handle_pose(self, key: str, raw: bytes | None) -> None:
         k = parse(key)
@@ -335,9 +335,9 @@ class Broker:
             return
         try:
             if raw is None:
-                raise codec.CodecError("toolarge", f"pose sample over {codec.MAX_SMALL_MESSAGE} bytes")
-            pose = codec.decode_pose(raw)
-        except codec.CodecError as e:
+                raise wire.CodecError("toolarge", f"pose sample over {wire.MAX_SMALL_MESSAGE} bytes")
+            pose = wire.decode_pose(raw)
+        except wire.CodecError as e:
             self.counters["pose_" + e.reason] += 1
             self.warn(f"pose_bad:{name}", "pose for %s ignored (%s): %s", name, e.reason, e.detail)
             return
@@ -363,7 +363,7 @@ class Broker:
             if dev not in self.real:
                 return
             self.real.discard(dev)
-            held = self._swapped.pop(dev, None)
+            held = self.swapped.pop(dev, None)
             if held is not None and dev not in self.net.modems:
                 vehicle, cfg = held
                 try:
@@ -388,7 +388,7 @@ class Broker:
         m.hil_swapped = True                      # type: ignore[attr-defined]  (see _on_status)
         while m.fifo:
             m.drop(m.fifo_pop(), "swapped")
-        self._swapped[dev] = (m.vehicle, m.cfg)
+        self.swapped[dev] = (m.vehicle, m.cfg)
         with contextlib.suppress(ValueError):
             self.net.remove_device(dev)
         self.detach(dev)
@@ -427,7 +427,7 @@ class Broker:
                     continue
                 key = self.keys.info(dev)
                 if ke.intersects(key):
-                    query.reply(key, codec.pack(self.info(dev)))
+                    query.reply(key, wire.pack(self.info(dev)))
 
     def _answer_control(self, query: zenoh.Query, raw: Any) -> None:
         with query:
@@ -437,18 +437,18 @@ class Broker:
                 op, reply = "?", {"ok": False, "error": "name one operation: control/<op>"}
             else:
                 if raw is not None and not isinstance(raw, bytes):
-                    reply = {"ok": False, "error": f"request larger than {codec.MAX_SMALL_MESSAGE} bytes"}
+                    reply = {"ok": False, "error": f"request larger than {wire.MAX_SMALL_MESSAGE} bytes"}
                 else:
                     try:
-                        reply = self.control.handle(op, codec.decode_request(raw))
-                    except codec.CodecError as e:
+                        reply = self.control.handle(op, wire.decode_request(raw))
+                    except wire.CodecError as e:
                         reply = {"ok": False, "error": f"{e.reason}: {e.detail}"}
             if not reply.get("ok"):
                 self.warn(f"control:{op}", "control/%s refused: %s", op, reply.get("error"))
             if op == "?":
-                query.reply_err(codec.pack(reply))
+                query.reply_err(wire.pack(reply))
             else:
-                query.reply(self.keys.control(op), codec.pack(reply))
+                query.reply(self.keys.control(op), wire.pack(reply))
 
     # -- periodic publications (engine events) ---------------------------------------------------
     def _schedule_poses(self) -> None:
@@ -491,7 +491,7 @@ class Broker:
                 for name in names:
                     pub = self._pose_pubs.get(name)
                     if pub is not None:
-                        pub.put(codec.encode_pose(pos[idx[name]], t=now))
+                        pub.put(wire.encode_pose(pos[idx[name]], t=now))
         if self._clock_due:
             self._clock_due = False
             self.publish_clock()
@@ -503,7 +503,7 @@ class Broker:
 
     def publish_clock(self) -> None:
         if self._clock_pub is not None:
-            self._clock_pub.put(codec.pack(self.clock_sample()))
+            self._clock_pub.put(wire.pack(self.clock_sample()))
 
     def _clock_tick(self) -> None:
         if self._clock_due:

@@ -11,9 +11,8 @@ import time
 from typing import Any
 
 import zenoh
-
-from . import codec
-from .keys import Keys
+from uwsimnet_gli import wire
+from uwsimnet_gli.wire import Keys
 
 
 def sim_time(sample: dict[str, Any]) -> float:
@@ -32,7 +31,7 @@ class WorldClock:
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         with contextlib.suppress(Exception):
-            m = codec.unpack(sample.payload.to_bytes(), codec.MAX_SMALL_MESSAGE)
+            m = wire.unpack(sample.payload.to_bytes(), wire.MAX_SMALL_MESSAGE)
             t, speed = m["t"], m.get("speed", 1.0)
             if not (isinstance(t, int | float) and math.isfinite(t) and isinstance(speed, int | float) and speed > 0):
                 return

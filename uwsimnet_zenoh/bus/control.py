@@ -23,17 +23,35 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from pydantic import ValidationError
+from uwsimnet_gli.wire import KeyNameError, Keys, check_chunk
 
 from ..scene.model import Device
-from .keys import KeyNameError, check_chunk
-
-if TYPE_CHECKING:
-    from .broker import Broker
 
 Reply = dict[str, Any]
+
+
+class Served(Protocol):
+    """What the control operations act on: the broker's network, clock and served modems (bus/broker.py
+    implements it; this module never imports the broker)."""
+
+    net: Any
+    clock: Any
+    keys: Keys
+    counters: Any
+    endpoints: dict[str, Any]
+    real: set[str]
+    foreign: set[str]
+    swapped: dict[str, tuple[str, Any]]
+
+    def serves(self, channel: int) -> bool: ...
+    def attach(self, modem: Any) -> None: ...
+    def detach(self, dev: str) -> None: ...
+    def info(self, dev: str) -> dict[str, Any]: ...
+    def clock_sample(self) -> dict[str, Any]: ...
+    def publish_clock(self) -> None: ...
 
 
 class ControlError(ValueError):
@@ -60,7 +78,7 @@ def _str(req: dict, key: str) -> str:
 
 
 class Control:
-    def __init__(self, broker: Broker) -> None:
+    def __init__(self, broker: Served) -> None:
         self.b = broker
         self.ops: dict[str, Callable[[dict], Reply]] = {
             "state": self.state, "pause": self.pause, "resume": self.resume, "move": self.move,
@@ -89,7 +107,7 @@ class Control:
                         "tx_channel": ep.modem.tx_channel.id, "rx_channel": ep.modem.rx_channel.id,
                         "kind": "real" if dev in b.real else "sim"}
                   for dev, ep in b.endpoints.items()}
-        for dev, (vehicle, cfg) in b._swapped.items():          # handed to a real driver (HIL swap)
+        for dev, (vehicle, cfg) in b.swapped.items():          # handed to a real driver (HIL swap)
             modems[dev] = {"vehicle": vehicle, "address": cfg.address, "tx_channel": cfg.tx_channel,
                            "rx_channel": cfg.rx_channel, "kind": "real"}
         vehicles = {}

@@ -23,17 +23,13 @@ from collections.abc import Iterable
 from typing import Any
 
 import zenoh
+from uwsimnet_gli import wire
+from uwsimnet_gli.wire import Keys, check_chunk
 
 from ..mobility.kinematic import CommandError, KinematicVehicle
-from . import codec
 from .clock import WorldClock
-from .keys import Keys, check_chunk
 
 log = logging.getLogger("uwsimnet.bus.kinematic")
-
-
-def cmd_key(world: str, name: str = "*") -> str:
-    return f"uwsimnet/{world}/vehicle/{name}/cmd"
 
 
 class KinematicRunner:
@@ -50,7 +46,7 @@ class KinematicRunner:
         self._thread: threading.Thread | None = None
         self.clock = WorldClock(session, self.keys)
         self._pubs = {n: session.declare_publisher(self.keys.pose(n)) for n in self.vehicles}
-        self._sub = session.declare_subscriber(cmd_key(world), self._on_cmd)
+        self._sub = session.declare_subscriber(self.keys.vehicle_cmd_all, self._on_cmd)
         self._lock = threading.Lock()
 
     def start(self) -> KinematicRunner:
@@ -89,9 +85,9 @@ class KinematicRunner:
             self.counters["cmd_unknown"] += 1
             return
         try:
-            v.command(codec.unpack(raw, codec.MAX_SMALL_MESSAGE))
+            v.command(wire.unpack(raw, wire.MAX_SMALL_MESSAGE))
             self.counters["cmd"] += 1
-        except (codec.CodecError, CommandError) as e:
+        except (wire.CodecError, CommandError) as e:
             self.counters["cmd_bad"] += 1
             log.warning("%s: command ignored: %s", name, e)
 
@@ -126,5 +122,5 @@ class KinematicRunner:
             out = [(n, self.observed(v), v.v) for n, v in self.vehicles.items()]
         for n, p, vel in out:
             with contextlib.suppress(Exception):
-                self._pubs[n].put(codec.encode_pose(p, v=vel, t=now))
+                self._pubs[n].put(wire.encode_pose(p, v=vel, t=now))
                 self.counters["poses"] += 1

@@ -26,8 +26,8 @@ import math
 from typing import Any
 
 from ..engine.network import Network
-from ..engine.realtime import RealtimeClock
-from ..phy.frame import BROADCAST, Frame
+from ..kernel.frame import BROADCAST, Frame
+from ..kernel.realtime import RealtimeClock
 from ..phy.modem import Modem
 from ..scene.model import Scene
 from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback

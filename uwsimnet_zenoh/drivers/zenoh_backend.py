@@ -25,11 +25,11 @@ from collections import OrderedDict
 from typing import Any
 
 import zenoh
+from uwsimnet_gli import wire
+from uwsimnet_gli.wire import Keys
 
-from ..bus import codec
 from ..bus.clock import WorldClock
-from ..bus.keys import Keys
-from ..phy.frame import BROADCAST
+from ..kernel.frame import BROADCAST
 from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback
 
 log = logging.getLogger("uwsimnet.drivers.zenoh")
@@ -46,7 +46,7 @@ def query_info(session: zenoh.Session, keys: Keys, dev: str, timeout: float = 3.
     for r in session.get(keys.info(dev), timeout=timeout):
         if r.ok is not None:
             with contextlib.suppress(Exception):
-                return codec.unpack(r.ok.payload.to_bytes(), codec.MAX_SMALL_MESSAGE)
+                return wire.unpack(r.ok.payload.to_bytes(), wire.MAX_SMALL_MESSAGE)
     return None
 
 
@@ -134,7 +134,7 @@ class ZenohBackend:
             while len(self._tags) > 10000:
                 self._tags.popitem(last=False)
         self.counters["sent"] += 1
-        self._pub.put(codec.encode_tx(int(dst), bytes(data), ours))
+        self._pub.put(wire.encode_tx(int(dst), bytes(data), ours))
 
     def info(self) -> dict[str, Any]:
         return dict(self._info, counters=dict(self.counters))
@@ -149,14 +149,14 @@ class ZenohBackend:
     # -- Zenoh callbacks --------------------------------------------------------------------------
     def _on_trace(self, sample: zenoh.Sample) -> None:
         with contextlib.suppress(Exception):
-            rec = codec.unpack(sample.payload.to_bytes(), codec.MAX_SMALL_MESSAGE)
+            rec = wire.unpack(sample.payload.to_bytes(), wire.MAX_SMALL_MESSAGE)
             if isinstance(rec, dict):
                 self.tracker.on_trace(rec)
 
     def _on_rx(self, sample: zenoh.Sample) -> None:
         try:
-            f = codec.decode_rx(sample.payload.to_bytes())
-        except codec.CodecError:
+            f = wire.decode_rx(sample.payload.to_bytes())
+        except wire.CodecError:
             return
         self.counters["received"] += 1
         size = len(f.data) + int(self._info.get("header_bytes") or 0)
@@ -171,8 +171,8 @@ class ZenohBackend:
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         try:
-            st = codec.decode_status(sample.payload.to_bytes())
-        except codec.CodecError:
+            st = wire.decode_status(sample.payload.to_bytes())
+        except wire.CodecError:
             return
         if st.tag is None:
             return

@@ -21,9 +21,9 @@ import time
 from typing import Any
 
 import zenoh
+from uwsimnet_gli import wire
+from uwsimnet_gli.wire import Keys
 
-from ..bus import codec
-from ..bus.keys import Keys
 from .base import Driver, RxFrame, TxStatus
 
 log = logging.getLogger("uwsimnet.drivers.host")
@@ -97,15 +97,15 @@ class DriverHost:
 
     def _on_clock(self, sample: zenoh.Sample) -> None:
         with contextlib.suppress(Exception):
-            m = codec.unpack(sample.payload.to_bytes(), codec.MAX_SMALL_MESSAGE)
+            m = wire.unpack(sample.payload.to_bytes(), wire.MAX_SMALL_MESSAGE)
             self._clock = (float(m["t"]), time.time(), 0.0 if m.get("paused") else float(m.get("speed", 1.0)))
 
     def _on_tx(self, sample: zenoh.Sample) -> None:
         try:
-            req = codec.decode_tx(sample.payload.to_bytes())
-        except codec.CodecError as e:
+            req = wire.decode_tx(sample.payload.to_bytes())
+        except wire.CodecError as e:
             self.counters["bad"] += 1
-            self._st_pub.put(codec.encode_status(e.tag, "dropped", e.reason, self.now()))
+            self._st_pub.put(wire.encode_status(e.tag, "dropped", e.reason, self.now()))
             return
         self.counters["tx"] += 1
         self.driver.send(req.dst, req.data, req.tag)
@@ -120,7 +120,7 @@ class DriverHost:
                          "host_counters": dict(self.counters)})
             if info.get("address") is None:
                 info["address"] = self.driver.address
-            query.reply(self.keys.info(self.id), codec.pack(_plain(info)))
+            query.reply(self.keys.info(self.id), wire.pack(_plain(info)))
 
     # -- driver side (its I/O thread) -------------------------------------------------------------
     def _on_frame(self, f: RxFrame) -> None:
@@ -128,13 +128,13 @@ class DriverHost:
         seq, self._seq = self._seq, self._seq + 1
         t = self.now()
         with contextlib.suppress(Exception):
-            self._rx_pub.put(codec.encode_rx(int(f.src), int(f.dst), bytes(f.data), seq, t, t))
+            self._rx_pub.put(wire.encode_rx(int(f.src), int(f.dst), bytes(f.data), seq, t, t))
 
     def _on_status(self, st: TxStatus) -> None:
         self.counters["status"] += 1
         tag = st.tag if isinstance(st.tag, int) and not isinstance(st.tag, bool) else None
         with contextlib.suppress(Exception):
-            self._st_pub.put(codec.encode_status(tag, st.event, st.reason, self.now()))
+            self._st_pub.put(wire.encode_status(tag, st.event, st.reason, self.now()))
 
 
 def _plain(x: Any) -> Any:

@@ -11,14 +11,14 @@ from __future__ import annotations
 import hashlib
 from typing import Any
 
+from ..kernel.scheduler import Scheduler
 from ..mobility.trajectory import PoseTable, Trajectory
-from ..phy.acoustic_build import channel_options, modem_error_model
 from ..phy.channel import Channel
 from ..phy.modem import Modem
 from ..scene.model import Device, Scene, Vehicle
 from ..trace.events import Tracer
 from ..traffic.flow import FlowSource
-from .scheduler import Scheduler
+from .build import build_modem, channel_options
 
 
 class Network:
@@ -73,13 +73,10 @@ class Network:
         for ch in (cfg.tx_channel, cfg.rx_channel):
             if ch not in self.channels:
                 raise ValueError(f"device {cfg.dccomms_id!r}: no channel {ch}")
-        # acoustic devices (and any sender on a SINR channel) get their loss model from phy.acoustic_build
-        error = modem_error_model(cfg, *(next(c for c in self.scene.channels if c.id == ch)
-                                         for ch in (cfg.tx_channel, cfg.rx_channel)))
-        m = Modem(cfg, vehicle, self.poses.index[vehicle], self.sched, self.tracer,
-                  self.channels[cfg.tx_channel], self.channels[cfg.rx_channel], self.seeds)
-        if error is not None:
-            m.error = error
+        tx_spec, rx_spec = (next(c for c in self.scene.channels if c.id == ch)
+                            for ch in (cfg.tx_channel, cfg.rx_channel))
+        m = build_modem(cfg, vehicle, self.poses.index[vehicle], self.sched, self.tracer,
+                        self.channels[cfg.tx_channel], self.channels[cfg.rx_channel], self.seeds, tx_spec, rx_spec)
         self.modems[cfg.dccomms_id] = m
         return m
 

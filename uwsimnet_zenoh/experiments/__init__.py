@@ -1,1 +1,2 @@
-"""The paper's experiments and reference scenarios, runnable as `python -m uwsimnet_zenoh.experiments`."""
+"""The paper's experiments and reference scenarios (`uwsimnet experiment NAME`): scene generators, runs and
+figures.  A face beside cli/: imports app/ and every room below, never cli/."""

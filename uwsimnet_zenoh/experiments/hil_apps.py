@@ -36,11 +36,12 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..bus import codec
-from ..bus.kinematic import KinematicRunner, cmd_key
+from uwsimnet_gli import wire
+
+from ..bus.kinematic import KinematicRunner
+from ..kernel.frame import BROADCAST
 from ..mobility.kinematic import KinematicVehicle
-from ..phy.frame import BROADCAST
-from .hil_formation import (
+from .hil_spec import (
     DEPTH,
     LEADER_PERIOD,
     MAX_ACCEL,
@@ -184,17 +185,17 @@ def run_app(name: str, world_name: str, connect: str) -> None:
         pose: list[Vec | None] = [None]
 
         def on_pose(sample: Any) -> None:
-            with contextlib.suppress(codec.CodecError):
-                pose[0] = codec.decode_pose(sample.payload.to_bytes()).p
+            with contextlib.suppress(wire.CodecError):
+                pose[0] = wire.decode_pose(sample.payload.to_bytes()).p
 
         sub = w.session.declare_subscriber(w.keys.pose(name), on_pose)
-        cmd = w.session.declare_publisher(cmd_key(w.name, name))
+        cmd = w.session.declare_publisher(w.keys.vehicle_cmd(name))
         modem = w.modem(f"{name}-modem")
 
         def on_frame(f) -> None:
             with lock:
                 for g in app.on_frame(f.src, f.data):
-                    cmd.put(codec.pack({"waypoint": list(g.waypoint)}))
+                    cmd.put(wire.pack({"waypoint": list(g.waypoint)}))
 
         modem.on_receive(on_frame)
         if w.sim_time(timeout=10.0) is None:

@@ -1,7 +1,7 @@
 """The paper's HIL formation experiment (Sec. 3.3, Fig. 9) as it runs in a lab: separate processes on a
 real-time clock over Zenoh, CS-ALOHA and S-FAMA side by side.
 
-    python -m uwsimnet_zenoh.experiments hil-formation [--duration 240] [--out out/hil-formation]
+    uwsimnet experiment hil-formation [--duration 240] [--out out/hil-formation]
 
 Per MAC, each in its own process (logs in OUT/logs/):
 
@@ -28,13 +28,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..bus import codec
+from uwsimnet_gli import wire
+from uwsimnet_gli.wire import Keys, parse
+
+from ..analysis import read_trace
 from ..bus.clock import WorldClock
-from ..bus.keys import Keys, parse
 from ..bus.session import make_config, open_session
 from ..errors import UserError
-from ..trace.report import read_trace
 from . import hil_formation as h
+from . import hil_spec as spec
 from .processes import PY, ProcessError, Processes
 
 TICK = 0.1
@@ -50,20 +52,20 @@ def _apps(*args: str) -> list[str]:
 
 def start_world(procs: Processes, mac: str, endpoint: str, out: Path, duration: float, speed: float) -> str:
     world = f"hil-formation-{mac}"
-    scene = h.SCENES / f"hil-formation-{mac}.xml"
+    scene = spec.SCENES / f"hil-formation-{mac}.xml"
     procs.start(f"{mac}-broker", _uwsimnet("run", str(scene), "--clock", "realtime", "--connect", endpoint,
                                            "--duration", f"{duration + 60:g}", "--speed", f"{speed:g}",
                                            "--trace", str(out / f"{mac}.trace.jsonl")),
                 ready="uwsimnet: running")
-    followers = [f"--vehicle={n}={off[0]:g},{off[1]:g},{h.DEPTH:g}"
-                 for n, (_, off) in h.VEHICLES.items() if n != "leader"]
+    followers = [f"--vehicle={n}={off[0]:g},{off[1]:g},{spec.DEPTH:g}"
+                 for n, (_, off) in spec.VEHICLES.items() if n != "leader"]
     procs.start(f"{mac}-vehicles", _uwsimnet("vehicles", "--world", world, "--connect", endpoint, *followers,
-                                             "--max-speed", f"{h.MAX_SPEED:g}", "--max-accel", f"{h.MAX_ACCEL:g}",
+                                             "--max-speed", f"{spec.MAX_SPEED:g}", "--max-accel", f"{spec.MAX_ACCEL:g}",
                                              "--rate", f"{10 * speed:g}"),      # 10 poses per simulated second
                 ready="uwsimnet: vehicles ready")
     procs.start(f"{mac}-robot", _apps("robot", "--world", world, "--connect", endpoint, "--rate", f"{15 * speed:g}"),
                 ready="ready in")
-    for name in (h.OPERATOR[0], *h.VEHICLES):
+    for name in (spec.OPERATOR[0], *spec.VEHICLES):
         procs.start(f"{mac}-{name}", _apps("app", name, "--world", world, "--connect", endpoint),
                     ready="ready in")
     return world
@@ -76,8 +78,8 @@ class Recorder:
     def __init__(self, session: Any, worlds: dict[str, str], until: float) -> None:
         self.until = until
         self.clocks = {mac: WorldClock(session, Keys(w)) for mac, w in worlds.items()}   # mac -> world name
-        self.poses: dict[str, dict[str, h.Vec]] = {mac: {} for mac in worlds}
-        self.res = {mac: {"mac": mac, "t": [], "error": {n: [] for n in h.VEHICLES}} for mac in worlds}
+        self.poses: dict[str, dict[str, spec.Vec]] = {mac: {} for mac in worlds}
+        self.res = {mac: {"mac": mac, "t": [], "error": {n: [] for n in spec.VEHICLES}} for mac in worlds}
         self._next = dict.fromkeys(worlds, 0.0)
         by_world = {w: mac for mac, w in worlds.items()}
 
@@ -85,8 +87,8 @@ class Recorder:
             k = parse(sample.key_expr)
             if k is None or k.kind != "pose" or k.world not in by_world or k.name is None:
                 return
-            with contextlib.suppress(codec.CodecError):
-                self.poses[by_world[k.world]][k.name] = codec.decode_pose(sample.payload.to_bytes()).p
+            with contextlib.suppress(wire.CodecError):
+                self.poses[by_world[k.world]][k.name] = wire.decode_pose(sample.payload.to_bytes()).p
 
         self._sub = session.declare_subscriber("uwsimnet/*/pose/*", on_pose)
 
@@ -101,8 +103,8 @@ class Recorder:
             least = min(least, t)
             if t < self._next[mac] or t > self.until:
                 continue
-            errs = h.formation_errors(t, self.poses[mac])
-            if len(errs) < len(h.VEHICLES):
+            errs = spec.formation_errors(t, self.poses[mac])
+            if len(errs) < len(spec.VEHICLES):
                 continue                                     # not every vehicle has a pose yet
             r = self.res[mac]
             r["t"].append(t)
@@ -118,7 +120,8 @@ class Recorder:
             self._sub.undeclare()
 
 
-def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: Path | None = None) -> dict[str, Any]:
+def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0,
+        figure: Path | None = None) -> dict[str, Any]:
     """Run both MACs in real time (about `duration` / `speed` s plus start-up; `speed` > 1 is for runs
     without hardware: every process follows the worlds' clocks); Fig. 9, summary.md/json in `out`."""
     from rich.progress import Progress
@@ -130,7 +133,7 @@ def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: 
     with Processes(out / "logs") as procs:
         router = procs.start("router", _uwsimnet("router", "--listen", "tcp/127.0.0.1:0"), ready="listening on")
         endpoint = re.search(r"tcp/127\.0\.0\.1:\d+", router.output()).group(0)      # the port it was given
-        worlds = {mac: start_world(procs, mac, endpoint, out, duration, speed) for mac in h.PROTOCOLS}
+        worlds = {mac: start_world(procs, mac, endpoint, out, duration, speed) for mac in spec.PROTOCOLS}
         with open_session(make_config("client", connect=[endpoint])) as session:
             rec = Recorder(session, worlds, duration)
             try:
@@ -154,7 +157,7 @@ def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: 
         r["delivery"] = h.delivery(read_trace(out / f"{mac}.trace.jsonl")[1])
         h.write_errors(r, out / f"{mac}.errors.csv")
     # the model over the same window as the real-time record (which starts once every pose is known)
-    model = {mac: h.window(h.simulate(mac, duration=duration), results[mac]["t"][0]) for mac in h.PROTOCOLS}
+    model = {mac: h.window(h.simulate(mac, duration=duration), results[mac]["t"][0]) for mac in spec.PROTOCOLS}
     st = {mac: h.stats(r) for mac, r in results.items()}
     st_model = {mac: h.stats(r) for mac, r in model.items()}
     for path in (out / "fig9-hil-formation.png", figure):
@@ -165,10 +168,10 @@ def run(out: Path, *, duration: float = h.DURATION, speed: float = 1.0, figure: 
     lines += ["", "Virtual-time model of the same scene (dashed in the figure):", "",
               "| MAC | vehicle | mean error, real time (m) | mean error, model (m) | difference (m) |",
               "|---|---|---|---|---|"]
-    for mac in h.PROTOCOLS:
-        for n in h.VEHICLES:
+    for mac in spec.PROTOCOLS:
+        for n in spec.VEHICLES:
             a, b = st[mac][n]["mean"], st_model[mac][n]["mean"]
-            lines.append(f"| {h.PROTOCOLS[mac]} | {n} | {a:.3f} | {b:.3f} | {a - b:+.3f} |")
+            lines.append(f"| {spec.PROTOCOLS[mac]} | {n} | {a:.3f} | {b:.3f} | {a - b:+.3f} |")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     summary = {"realtime": st, "virtual": st_model, "duration": duration, "speed": speed}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -103,10 +103,10 @@ def delays(recs: list[dict], scene: Scene) -> dict:
 
 def run(out: Path, progress: bool = True) -> dict:
     """Run both scenes into `out`; return the summary (also written as summary.json and summary.md)."""
-    from ..cli import run_virtual
+    from ..analysis import flow_metrics, report_json
+    from ..analysis.figures import plot_trace
+    from ..app.virtual import run_virtual
     from ..scene.load import load_scene
-    from ..trace.plot import plot_trace
-    from ..trace.report import flow_metrics, report_json
 
     out.mkdir(parents=True, exist_ok=True)
     summary: dict = {}

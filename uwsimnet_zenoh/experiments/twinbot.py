@@ -1,7 +1,7 @@
 """The paper's MAC-layer experiment (Section 3.2, Table 1, Fig. 7): the TWINBOT scene with NOMAC,
 CS-ALOHA and S-FAMA.
 
-    python -m uwsimnet_zenoh.experiments twinbot --out out/twinbot
+    uwsimnet experiment twinbot --out out/twinbot
 
 runs scenes/paper/twinbot-{nomac,aloha,sfama}.xml, and writes their traces, the Fig. 7 panels
 (fig7-mac-comparison.png), a Table 1 style table and a summary (summary.md, summary.json).
@@ -276,8 +276,8 @@ VARIANTS: dict[str, tuple[str, tuple[str, ...], dict]] = {
 
 def _run_one(protocol: str, scene, trace: Path, progress: bool) -> tuple[dict, dict]:
     """Run one scene; (per-receiver flow metrics, summary of the run)."""
-    from ..cli import run_virtual
-    from ..trace.report import analyse
+    from ..analysis import analyse
+    from ..app.virtual import run_virtual
 
     run_virtual(scene, seed=None, duration=None, trace_path=trace, progress=progress)
     a = analyse(trace)
@@ -302,8 +302,8 @@ def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PRO
         variants: tuple[str, ...] = tuple(VARIANTS)) -> dict:
     """Run the scenes into `out` (and the sensitivity variants into out/<variant>/); return the summary
     (also written as summary.json and summary.md, with table1.md and fig7-mac-comparison.png)."""
+    from ..analysis.figures import compare_markdown, plot_compare
     from ..scene.load import load_scene, load_scene_text
-    from ..trace.plot import compare_markdown, plot_compare
 
     out.mkdir(parents=True, exist_ok=True)
     quiet = lambda *_: None   # noqa: E731  (the scenes' warnings are known: no pose sources etc.)
@@ -409,4 +409,4 @@ if __name__ == "__main__":
             print(p)
     else:
         print("usage: python -m uwsimnet_zenoh.experiments.twinbot --write-scenes"
-              " (runs: python -m uwsimnet_zenoh.experiments twinbot)")
+              " (runs: uwsimnet experiment twinbot)")

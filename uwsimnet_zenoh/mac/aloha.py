@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import math
 
-from ..phy.frame import Frame
-from .base import Mac, MacContext, OneFrameMac, register
+from ..kernel.frame import Frame
+from .base import Mac, MacContext, OneFrameMac
+from .registry import register
 
 MAX_DISTANCE_CAP = 10_000.0
 """Default cap (m) on the distance used for timeouts and slots when `maxDistance` is not given: the

@@ -1,4 +1,4 @@
-"""The MAC interface (sans-IO) and the protocol registry.
+"""The MAC interface (sans-IO): `Mac`, the context it acts through (`MacContext`), and `OneFrameMac`.
 
 A MAC is a plain state machine.  The modem tells it what happened (a frame waits in the FIFO, our
 transmission ended, a frame arrived intact, a reception failed) and the MAC answers through its
@@ -11,19 +11,16 @@ under the entry-point group `uwsimnet.mac`.  docs/mac.md walks through an exampl
 
 from __future__ import annotations
 
-import contextlib
-import importlib
 from collections.abc import Callable
-from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
-    from ..engine.scheduler import Event
-    from ..phy.frame import Frame
+    from ..kernel.frame import Frame
+    from ..kernel.scheduler import Event
 
 
 class MacContext(Protocol):
-    """What a modem offers its MAC (implemented by `phy.modem.Modem`)."""
+    """What a modem offers its MAC (`phy.modem.Modem` has it; mac never imports phy)."""
 
     address: int
     id: str
@@ -171,53 +168,3 @@ class OneFrameMac(Mac):
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-
-
-_BUILTIN: dict[str, str] = {}
-
-
-def register(*names: str) -> Callable[[type[Mac]], type[Mac]]:
-    """Class decorator naming a built-in MAC (case-insensitive)."""
-    def deco(cls: type[Mac]) -> type[Mac]:
-        for n in names:
-            _BUILTIN[n.lower()] = f"{cls.__module__}:{cls.__qualname__}"
-        return cls
-    return deco
-
-
-def builtin_names() -> list[str]:
-    _load_builtins()
-    return sorted(_BUILTIN)
-
-
-def _load_builtins() -> None:
-    importlib.import_module("uwsimnet_zenoh.mac.nomac")
-    for mod in ("aloha", "sfama"):
-        with contextlib.suppress(ModuleNotFoundError):
-            importlib.import_module(f"uwsimnet_zenoh.mac.{mod}")
-
-
-def resolve(name: str) -> type[Mac]:
-    """A MAC class from a built-in name, an entry point of group `uwsimnet.mac`, or `module:Class`."""
-    _load_builtins()
-    key = name.strip().lower()
-    spec = _BUILTIN.get(key)
-    if spec is None:
-        for ep in entry_points(group="uwsimnet.mac"):
-            if ep.name.lower() == key:
-                cls = ep.load()
-                break
-        else:
-            if ":" not in name:
-                raise ValueError(f"unknown MAC protocol {name!r} (built-in: {', '.join(builtin_names())};"
-                                 " or give module:Class)")
-            spec = name.strip()
-    if spec is not None:
-        mod_name, _, cls_name = spec.partition(":")
-        try:
-            cls = getattr(importlib.import_module(mod_name), cls_name)
-        except (ImportError, AttributeError) as e:
-            raise ValueError(f"cannot load MAC protocol {name!r}: {e}") from None
-    if not (isinstance(cls, type) and issubclass(cls, Mac)):
-        raise ValueError(f"MAC protocol {name!r} is not a subclass of uwsimnet_zenoh.mac.base.Mac")
-    return cls

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-from ..phy.frame import Frame
+from ..kernel.frame import Frame
 from .base import Mac, MacContext
 
 

@@ -11,8 +11,9 @@ is pure ALOHA.
 
 from __future__ import annotations
 
-from ..phy.frame import Frame
-from .base import Mac, register
+from ..kernel.frame import Frame
+from .base import Mac
+from .registry import register
 
 
 @register("none", "nomac", "")

@@ -26,12 +26,13 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from ..phy.frame import Frame
+from ..kernel.frame import Frame
 from .aloha import MAC_HEADER, Dedup, ctrl_size, max_distance, next_boundary, number
-from .base import MacContext, OneFrameMac, register
+from .base import MacContext, OneFrameMac
+from .registry import register
 
 if TYPE_CHECKING:
-    from ..engine.scheduler import Event
+    from ..kernel.scheduler import Event
 
 RTS_CTS_HEADER = MAC_HEADER + 2
 """RTS/CTS: the MAC header plus a 16-bit count of data slots (Aqua-Sim's SFamaHeader: 7 bytes)."""

@@ -713,3 +713,33 @@ PRESETS: dict[str, AcousticModemParams] = {
                 "Modulation: the broadband spread-spectrum waveform is modelled as DPSK. " + _CALIBRATION)),
 }
 """Named modem presets; see docs/acoustic.md for the table and the sources."""
+
+
+class FixedBerLink:
+    """An `AcousticLink` whose noise-limited bit error rate is a constant (legacy ``bitErrorRate``).
+
+    per(d, L) = 1 - (1 - BER)^(8L) at every distance; the received power, the noise and PER from SINR
+    (capture) stay the physics of the wrapped link, with PER(SINR) never below the fixed PER.
+    """
+
+    __slots__ = ("link", "ber")
+
+    def __init__(self, link: AcousticLink, ber: float) -> None:
+        self.link = link
+        self.ber = float(ber)
+
+    def __repr__(self) -> str:
+        return f"FixedBerLink({self.link!r}, ber={self.ber:g})"
+
+    def per(self, distance_m: np.ndarray | float, size_bytes: int) -> np.ndarray:
+        return np.full(np.shape(distance_m), float(per_from_ber(self.ber, size_bytes)))
+
+    def received_power(self, distance_m: np.ndarray | float) -> np.ndarray:
+        return self.link.received_power(distance_m)
+
+    @property
+    def noise_power(self) -> float:
+        return self.link.noise_power
+
+    def per_from_sinr(self, sinr_db: float, size_bytes: int) -> float:
+        return max(float(per_from_ber(self.ber, size_bytes)), float(self.link.per_from_sinr(sinr_db, size_bytes)))

@@ -20,11 +20,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .frame import BROADCAST, Frame
+from ..kernel.frame import BROADCAST, Frame
 from .interference import classify, min_sinr_db
 
 if TYPE_CHECKING:
-    from ..engine.scheduler import Scheduler
+    from ..kernel.scheduler import Scheduler
     from ..mobility.trajectory import PoseTable
     from ..trace.events import Tracer
     from .modem import Modem
@@ -109,7 +109,7 @@ class Channel:
         self._members += 1
 
     def _refresh_overhearing(self) -> None:
-        self._overhearing = [i for i, m in enumerate(self.listeners) if m is not None and m.mac.overhear]
+        self._overhearing = [i for i, m in enumerate(self.listeners) if m is not None and m.overhears]
 
     def has_address(self, address: int) -> bool:
         return address in self._by_addr
@@ -188,7 +188,7 @@ class Channel:
                     known = self.poses.known
                     why = "nopose" if not (known[self._veh[j]] and known[sender.vehicle_index]) else "range"
                     self.tracer.emit(now, "drop", self.id, m.id, frame, why, dist=float(dist[j]))
-                    m.mac.on_rx_error(frame, why)
+                    m.phy_failed(frame, why)
                 continue
             if sinr:
                 at(float(end[j]), self._reception_end_sinr, tx, j, rnd(), float(per[n]), n < intended)
@@ -209,12 +209,12 @@ class Channel:
         frame = tx.frame
         if not intended:
             if not (lost or col):
-                modem.mac.on_overhear(frame)
+                modem.phy_overheard(frame)
             return
         if lost or col:
             reason = "mult" if (lost and col) else ("prop" if lost else "col")
             self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=float(tx.dist[j]))
-            modem.mac.on_rx_error(frame, reason)
+            modem.phy_failed(frame, reason)
         else:
             modem.phy_received(frame, float(tx.dist[j]))
 
@@ -261,11 +261,11 @@ class Channel:
         frame = tx.frame
         if not intended:
             if reason is None:
-                modem.mac.on_overhear(frame)
+                modem.phy_overheard(frame)
             return
         if reason is not None:
             self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=float(tx.dist[j]))
-            modem.mac.on_rx_error(frame, reason)
+            modem.phy_failed(frame, reason)
         else:
             if spans:
                 self.captures += 1

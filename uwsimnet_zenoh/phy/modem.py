@@ -13,15 +13,12 @@ from __future__ import annotations
 import random
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
-from ..mac.base import Mac, resolve
-from .error import RateErrorModel
-from .frame import BROADCAST, Frame
+from ..kernel.frame import BROADCAST, Frame
 
 if TYPE_CHECKING:
-    from ..engine.scheduler import Event, Scheduler
-    from ..scene.model import Device
+    from ..kernel.scheduler import Event, Scheduler
     from ..trace.events import Tracer
     from .channel import Channel
 
@@ -29,9 +26,50 @@ RxCallback = Callable[["Modem", Frame, float], None]
 StatusCallback = Callable[["Modem", Frame, str, "str | None", float], None]
 
 
+class DeviceParams(Protocol):
+    """The device parameters a modem reads (`scene.model.Device` has them; phy never imports the scene)."""
+
+    dccomms_id: str
+    address: int
+    bitrate: float
+    header_bytes: int
+    min_distance: float
+    max_distance: float
+    tx_fifo_bytes: int
+    max_frame_bytes: int
+    intrinsic_tx_s: float
+    intrinsic_rx_s: float
+    jitter_tx_s: float
+    jitter_rx_s: float
+
+
+class LossModel(Protocol):
+    """What the channel asks a transmitter's loss model: the packet error rate at each distance."""
+
+    def per(self, distance_m: Any, size_bytes: int) -> Any: ...
+
+
+class MacHooks(Protocol):
+    """What a modem tells its MAC (mac.Mac implements it; phy never imports mac, as ns-3's UanPhyListener)."""
+
+    overhear: bool
+
+    def ready(self) -> bool: ...
+    def on_queue(self) -> None: ...
+    def on_tx_done(self, frame: Frame) -> None: ...
+    def on_rx(self, frame: Frame) -> None: ...
+    def on_overhear(self, frame: Frame) -> None: ...
+    def on_rx_error(self, frame: Frame, reason: str) -> None: ...
+    def close(self) -> None: ...
+
+
 class Modem:
-    def __init__(self, cfg: Device, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
-                 tx_channel: Channel, rx_channel: Channel, seeds: Callable[[str, str], int]) -> None:
+    """One device: built by the engine's build step, which gives it its loss model and then its MAC
+    (`attach_mac`) before the first frame."""
+
+    def __init__(self, cfg: DeviceParams, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
+                 tx_channel: Channel, rx_channel: Channel, seeds: Callable[[str, str], int],
+                 error: LossModel) -> None:
         self.cfg = cfg
         self.id = cfg.dccomms_id
         self.address = cfg.address
@@ -45,7 +83,7 @@ class Modem:
         self.header_bytes = cfg.header_bytes
         self.min_distance = cfg.min_distance
         self.max_distance = cfg.max_distance
-        self.error = RateErrorModel(cfg.error.expr, cfg.error.unit)
+        self.error = error
         self.fifo: deque[Frame] = deque()
         self.fifo_bytes = 0
         self.fifo_cap = cfg.tx_fifo_bytes
@@ -64,8 +102,18 @@ class Modem:
         self.on_receive: list[RxCallback] = []
         self.on_status: list[StatusCallback] = []
         self.counters = {"enq": 0, "tx": 0, "rx": 0, "drop": 0}
-        self.mac: Mac = resolve(cfg.mac.name)(self, dict(cfg.mac.params))
-        self.rx_slot = rx_channel.attach(self)
+        self.mac: MacHooks = _NO_MAC
+        self.rx_slot = -1
+
+    def attach_mac(self, mac: MacHooks) -> None:
+        """Give the modem its MAC (built with this modem as its context), then listen on the rx channel."""
+        self.mac = mac
+        self.rx_slot = self.rx_channel.attach(self)
+
+    @property
+    def overhears(self) -> bool:
+        """Whether the channel must hand this modem intact frames addressed to others (its MAC asks)."""
+        return self.mac.overhear
 
     # -- the application side ------------------------------------------------------------------
     def send(self, dst: int, payload: int, *, data: bytes | None = None, flow: str | None = None,
@@ -210,6 +258,14 @@ class Modem:
         self._rx_dist = dist
         self.mac.on_rx(frame)
 
+    def phy_overheard(self, frame: Frame) -> None:
+        """Called by the channel: `frame`, addressed to another modem, arrived intact (if `overhears`)."""
+        self.mac.on_overhear(frame)
+
+    def phy_failed(self, frame: Frame, reason: str) -> None:
+        """Called by the channel: `frame`, addressed to us, was lost (prop, col, mult, range, nopose)."""
+        self.mac.on_rx_error(frame, reason)
+
     def close(self) -> None:
         """Leave the simulation: every frame still held ends with a drop (reason `removed`)."""
         self.closed = True
@@ -217,3 +273,15 @@ class Modem:
         while self.fifo:
             self.drop(self.fifo_pop(), "removed")
         self.rx_channel.detach(self)
+
+
+class _Unattached:
+    """The MAC of a modem the build step has not finished: using it is a wiring bug, said clearly."""
+
+    overhear = False
+
+    def __getattr__(self, name: str) -> Any:
+        raise RuntimeError(f"modem used before the build step attached its MAC ({name})")
+
+
+_NO_MAC: Any = _Unattached()

@@ -12,7 +12,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from ..phy.frame import BROADCAST
+from ..kernel.frame import BROADCAST
+from ..phy.acoustic import PRESETS, AcousticChannelParams
 
 
 class _Model(BaseModel):
@@ -49,12 +50,11 @@ class Channel(_Model):
     @classmethod
     def _acoustic_delay(cls, data: object) -> object:
         if isinstance(data, dict) and data.get("acoustic") is not None and "prop_s_per_m" not in data:
-            from ..phy.acoustic_build import prop_s_per_m
             try:
                 spec = AcousticChannelSpec.model_validate(data["acoustic"])
             except ValueError:
                 return data      # the field's own validation reports it
-            data = {**data, "prop_s_per_m": prop_s_per_m(spec)}
+            data = {**data, "prop_s_per_m": 1.0 / spec.params().sound_speed()}
         return data
 
 
@@ -86,11 +86,11 @@ class Device(_Model):
     @classmethod
     def _acoustic_bitrate(cls, data: object) -> object:
         if isinstance(data, dict) and data.get("acoustic") is not None and "bitrate" not in data:
-            from ..phy.acoustic_build import default_bitrate
             try:
-                rate = default_bitrate(AcousticDeviceSpec.model_validate(data["acoustic"]))
+                spec = AcousticDeviceSpec.model_validate(data["acoustic"])
             except ValueError:
                 return data
+            rate = PRESETS[spec.preset].bitrate_bps if spec.preset is not None else None
             if rate is not None:
                 data = {**data, "bitrate": rate}
         return data
@@ -222,6 +222,14 @@ class AcousticChannelSpec(_Model):
     acquire_threshold_db: float = 10.0
     """capture first: SINR at arrival needed to lock onto a frame, dB (ns-3 UanPhyGen RxThreshold)."""
 
+    def params(self, spreading_k: float | None = None) -> AcousticChannelParams:
+        """This water as physics (`spreading_k` overrides the channel's, for a device's K)."""
+        return AcousticChannelParams(
+            temperature_c=self.temperature_c, salinity_ppt=self.salinity_ppt, depth_m=self.depth_m, ph=self.ph,
+            spreading_k=self.spreading_k if spreading_k is None else spreading_k, absorption=self.absorption,
+            shipping=self.shipping, wind_mps=self.wind_mps, noise_psd_db=self.noise_psd_db,
+            noise_level_db=self.noise_level_db, sound_speed_mps=self.sound_speed_mps)
+
     @field_validator("absorption")
     @classmethod
     def _absorption_nonnegative(cls, a: str | float) -> str | float:
@@ -266,10 +274,8 @@ class AcousticDeviceSpec(_Model):
     @field_validator("preset")
     @classmethod
     def _known_preset(cls, name: str | None) -> str | None:
-        if name is not None:
-            from ..phy.acoustic import PRESETS
-            if name not in PRESETS:
-                raise ValueError(f"unknown preset {name!r} (known: {', '.join(sorted(PRESETS))})")
+        if name is not None and name not in PRESETS:
+            raise ValueError(f"unknown preset {name!r} (known: {', '.join(sorted(PRESETS))})")
         return name
 
     @model_validator(mode="after")

@@ -14,7 +14,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import IO, Any
 
-from ..phy.frame import Frame
+from ..kernel.frame import Frame
 
 Record = dict[str, Any]
 _EVENTS = ("enq", "tx", "rx", "drop")

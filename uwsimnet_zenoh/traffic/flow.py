@@ -9,7 +9,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ..engine.scheduler import Scheduler
+    from ..kernel.scheduler import Scheduler
     from ..phy.modem import Modem
     from ..scene.model import Flow
 

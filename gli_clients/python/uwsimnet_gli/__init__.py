@@ -13,9 +13,11 @@ Only eclipse-zenoh and msgpack: no simulator import.  The wire protocol is docs/
             print(frame.src, frame.data, frame.t_rx)
 """
 
-from ._wire import BROADCAST, DEFAULT_ENDPOINT, Frame, Status
-from .modem import Modem
-from .world import GliError, World, client_config, discover_worlds, load_config
+from uwsimnet_gli.modem import Modem
+from uwsimnet_gli.world import GliError, World, client_config, discover_worlds, load_config
+
+from .records import Frame, Status
+from .wire import BROADCAST, DEFAULT_ENDPOINT
 
 __all__ = ["BROADCAST", "DEFAULT_ENDPOINT", "Frame", "GliError", "Modem", "Status", "World", "client_config",
            "discover_worlds", "load_config"]

@@ -28,8 +28,10 @@ from typing import Any
 
 import zenoh
 
-from ._wire import DEFAULT_ENDPOINT, Frame, Status, decode_rx, decode_status, unpack
-from .world import GliError, World, load_config
+from uwsimnet_gli.world import GliError, World, load_config
+
+from .records import Frame, Status, read_map, read_rx, read_status
+from .wire import DEFAULT_ENDPOINT
 
 
 def _world(args: argparse.Namespace) -> World:
@@ -102,11 +104,11 @@ def cmd_listen(args: argparse.Namespace) -> int:
 
         def rx(sample: zenoh.Sample) -> None:
             dev = str(sample.key_expr).split("/")[-2]
-            q.put(decode_rx(sample.payload.to_bytes(), dev, time.time()))
+            q.put(read_rx(sample.payload.to_bytes(), dev, time.time()))
 
         def st(sample: zenoh.Sample) -> None:
             dev = str(sample.key_expr).split("/")[-2]
-            q.put(decode_status(sample.payload.to_bytes(), dev))
+            q.put(read_status(sample.payload.to_bytes(), dev))
         subs = []
         for m in mods:
             key = world.keys.modem(m, "rx")
@@ -153,7 +155,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         for r in world.session.get(key, timeout=args.timeout):
             if r.ok is not None:
                 try:
-                    out.append(unpack(r.ok.payload.to_bytes()))
+                    out.append(read_map(r.ok.payload.to_bytes()))
                 except Exception:  # noqa: BLE001
                     continue
         if not out:

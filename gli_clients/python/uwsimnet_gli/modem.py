@@ -27,10 +27,11 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from ._wire import Frame, Status, check_chunk, decode_rx, decode_status, encode_tx, unpack
+from .records import Frame, Status, read_map, read_rx, read_status
+from .wire import check_chunk, encode_tx
 
 if TYPE_CHECKING:
-    from .world import World
+    from uwsimnet_gli.world import World
 
 FINAL_EVENTS = ("sent", "dropped", "acked", "failed")
 _tags = itertools.count(random.SystemRandom().getrandbits(31) + 1)
@@ -153,7 +154,7 @@ class Modem:
             yield f
 
     def _on_rx(self, sample: zenoh.Sample) -> None:
-        f = decode_rx(sample.payload.to_bytes(), self.id, time.time())
+        f = read_rx(sample.payload.to_bytes(), self.id, time.time())
         if f is None:
             return
         for cb in self._rx_cbs:
@@ -198,7 +199,7 @@ class Modem:
             return found()
 
     def _on_status(self, sample: zenoh.Sample) -> None:
-        st = decode_status(sample.payload.to_bytes(), self.id)
+        st = read_status(sample.payload.to_bytes(), self.id)
         if st is None:
             return
         for cb in self._st_cbs:
@@ -255,7 +256,7 @@ class Modem:
         for r in self.world.session.get(self.world.keys.modem(self.id, "info"), timeout=timeout):
             if r.ok is not None:
                 try:
-                    m = unpack(r.ok.payload.to_bytes())
+                    m = read_map(r.ok.payload.to_bytes())
                 except Exception:  # noqa: BLE001
                     continue
                 if isinstance(m, dict):

@@ -11,7 +11,8 @@ from typing import Any
 
 import zenoh
 
-from ._wire import DEFAULT_ENDPOINT, PREFIX, Keys, check_chunk, encode_pose, pack, unpack
+from .records import read_map
+from .wire import DEFAULT_ENDPOINT, PREFIX, Keys, check_chunk, encode_pose, pack
 
 
 class GliError(RuntimeError):
@@ -134,7 +135,7 @@ class World:
     # -- modems ----------------------------------------------------------------------------------
     def modem(self, dev: str, **kw: Any):
         """A `Modem` handle for dccommsId `dev` (see uwsimnet_gli.modem.Modem)."""
-        from .modem import Modem
+        from uwsimnet_gli.modem import Modem
 
         return Modem(self, dev, **kw)
 
@@ -159,7 +160,7 @@ class World:
 
     def _on_clock(self, sample: zenoh.Sample) -> None:
         try:
-            m = unpack(sample.payload.to_bytes())
+            m = read_map(sample.payload.to_bytes())
         except Exception:  # noqa: BLE001
             return
         if isinstance(m, dict) and isinstance(m.get("t"), int | float):
@@ -195,7 +196,7 @@ class World:
                                   timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE):
             if r.ok is not None:
                 try:
-                    m = unpack(r.ok.payload.to_bytes())
+                    m = read_map(r.ok.payload.to_bytes())
                 except Exception:  # noqa: BLE001
                     continue
                 if isinstance(m, dict):

@@ -2,7 +2,7 @@
 
     session  router listening on --listen (default tcp/127.0.0.1:7447), or a client of --connect
     network  the scene (restricted to --channels), flows of the scene except --external-flows
-    clock    engine/realtime.RealtimeClock: the engine on its own thread
+    clock    kernel/realtime.RealtimeClock: the engine on its own thread
     broker   bus/broker.Broker: the modems on their keys, poses, trace, clock, control
     trace    the same JSONL as a virtual run (meta first), flushed every second and on exit
 
@@ -24,10 +24,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..bus.router import StopOnSignal
+from ..bus.session import DEFAULT_ENDPOINT, BusError, locators, make_config, open_raw, tune_threads
 from ..errors import UserError
 from ..scene.model import Scene
-from .router import StopOnSignal
-from .session import DEFAULT_ENDPOINT, BusError, locators, make_config, open_raw, tune_threads
 
 log = logging.getLogger("uwsimnet.bus.runtime")
 
@@ -178,11 +178,11 @@ def run_realtime(scene: Scene, args: Any) -> int:
 
 def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | None, external: set[str],
          hosted: Scene, foreign: set[str], trace: str, tmp: bool) -> int:
+    from ..bus.broker import Broker
     from ..engine.network import Network
-    from ..engine.realtime import Deferred, RealtimeClock
+    from ..kernel.realtime import Deferred, RealtimeClock
     from ..trace.events import CallbackSink, JsonlSink, load_tracing_class
     from ..traffic.flow import FlowSource
-    from .broker import Broker
 
     world = scene.world
     listen = list(args.listen or ())
@@ -303,8 +303,8 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
 def _summary(trace: str, s: dict[str, Any], net: Any) -> None:
     from rich.console import Console
 
-    from ..cli import show_metrics
-    from ..trace.report import TraceError, flow_metrics
+    from ..analysis import TraceError, flow_metrics
+    from .virtual import show_metrics
 
     console = Console()
     try:

@@ -1,11 +1,9 @@
-"""Per-flow metrics and the conservation check, computed from a JSONL trace (docs/trace-format.md).
+"""Per-flow metrics and the conservation check, computed from trace records (docs/trace-format.md).
 
 One pass over the events with state keyed by (transmitter dccommsId, seq), then one pass over the
 frames seen: time and memory are linear in the trace.  Everything here is pure: files are only read.
 
-    meta, events = read_trace("run.jsonl")
     a = analyse("run.jsonl")            # one pass: a.flows (FlowMetrics per flow) + a.conservation
-    print(format_text(a.flows))
     assert a.conservation == [] and not a.conservation.in_flight
 
 `flow_metrics()` and `conservation()` are the same pass, returning one half each.
@@ -13,145 +11,16 @@ frames seen: time and memory are linear in the trace.  Everything here is pure: 
 
 from __future__ import annotations
 
-import gzip
-import json
 import math
 from array import array
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field
-from os import PathLike
-from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
-from rich.table import Table
 
-from ..phy.frame import BROADCAST
-
-EVENTS = frozenset({"enq", "tx", "rx", "drop"})
-TX_REASONS = frozenset({"fifo", "retry", "size", "removed"})
-"""Drop reasons that happen at the transmitter (used only when the trace cannot tell by itself)."""
-RX_REASONS = frozenset({"prop", "col", "mult", "range", "nopose", "duplex"})
-"""Drop reasons that happen at a receiver (ditto)."""
-DEFAULT_HORIZON = 60.0
-"""A transmitted frame with no outcome whose last tx is this close (s) to the end is in flight."""
-
-Source = str | PathLike[str] | Iterable[dict[str, Any]]
-
-
-class TraceError(ValueError):
-    """A trace that cannot be read; the message is one line, `file:line: what`."""
-
-
-# -- reading ------------------------------------------------------------------------------------
-def _open(path: Path) -> IO[str]:
-    if path.suffix == ".gz":
-        return gzip.open(path, "rt", encoding="utf-8")
-    return open(path, encoding="utf-8")
-
-
-def _is_num(x: Any) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool)
-
-
-def _is_int(x: Any) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def _check(rec: Any, where: str) -> dict[str, Any]:
-    """The record if it is a usable trace record, else TraceError naming `where`."""
-    if not isinstance(rec, dict):
-        raise TraceError(f"{where}: expected a JSON object, got {type(rec).__name__}")
-    ev = rec.get("ev")
-    if not isinstance(ev, str):
-        raise TraceError(f"{where}: missing or non-string 'ev'")
-    if ev in EVENTS:
-        t = rec.get("t")
-        if not _is_num(t) or not math.isfinite(t):
-            raise TraceError(f"{where}: {ev} event: missing or non-numeric 't'")
-        for k in ("src", "seq", "size"):
-            if not _is_int(rec.get(k)):
-                raise TraceError(f"{where}: {ev} event: missing or non-integer {k!r}")
-        if not isinstance(rec.get("dev"), str):
-            raise TraceError(f"{where}: {ev} event: missing or non-string 'dev'")
-        if "ch" not in rec or not isinstance(rec["ch"], int | str):
-            raise TraceError(f"{where}: {ev} event: missing 'ch'")
-        if "dst" in rec and not _is_int(rec["dst"]):
-            raise TraceError(f"{where}: {ev} event: non-integer 'dst'")
-        flow = rec.get("flow")
-        if flow is not None and not isinstance(flow, str):
-            raise TraceError(f"{where}: {ev} event: 'flow' must be a string or null")
-        if ev == "drop" and not isinstance(rec.get("reason"), str):
-            raise TraceError(f"{where}: drop event without a string 'reason'")
-    return rec
-
-
-def _parse(line: str, path: Path | str, lineno: int) -> dict[str, Any]:
-    where = f"{path}:{lineno}"
-    try:
-        rec = json.loads(line)
-    except json.JSONDecodeError as e:
-        raise TraceError(f"{where}: invalid JSON: {e.msg} (column {e.colno})") from None
-    return _check(rec, where)
-
-
-def _events(path: Path, skip: int) -> Iterator[dict[str, Any]]:
-    try:
-        with _open(path) as fh:
-            for lineno, line in enumerate(fh, 1):
-                if lineno == skip or not line.strip():
-                    continue
-                yield _parse(line, path, lineno)
-    except (OSError, UnicodeDecodeError) as e:
-        raise TraceError(f"{path}: cannot read: {e}") from None
-
-
-def read_trace(path: str | PathLike[str]) -> tuple[dict[str, Any], Iterator[dict[str, Any]]]:
-    """(meta, events) of a JSONL trace (`.gz` is read transparently).
-
-    `meta` is the first line if it is an `ev: meta` record, else `{}`.  `events` is a lazy iterator
-    over the remaining records (unknown event kinds included: consumers skip them); a malformed line
-    raises `TraceError("file:line: ...")` when the iterator reaches it.
-    """
-    p = Path(path)
-    meta: dict[str, Any] = {}
-    skip = 0
-    try:
-        with _open(p) as fh:
-            for lineno, line in enumerate(fh, 1):
-                if not line.strip():
-                    continue
-                rec = _parse(line, p, lineno)
-                if rec["ev"] == "meta":
-                    meta, skip = rec, lineno
-                break
-    except (OSError, UnicodeDecodeError) as e:
-        raise TraceError(f"{p}: cannot read: {e}") from None
-    return meta, _events(p, skip)
-
-
-def _iter_checked(records: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
-    for i, rec in enumerate(records, 1):
-        yield _check(rec, f"<events>:{i}")
-
-
-def open_source(src: Source, meta: dict[str, Any] | None = None) -> tuple[dict[str, Any], Iterator[dict]]:
-    """(meta, events) from a path or from an iterable of records (whose first may be the meta)."""
-    if isinstance(src, str | PathLike):
-        m, events = read_trace(src)
-        return (m if meta is None else meta), events
-    it = _iter_checked(src)
-    first = next(it, None)
-    if first is None:
-        return (meta or {}), iter(())
-    if first["ev"] == "meta":
-        return (first if meta is None else meta), it
-    return (meta or {}), _chain(first, it)
-
-
-def _chain(first: dict[str, Any], rest: Iterator[dict[str, Any]]) -> Iterator[dict[str, Any]]:
-    yield first
-    yield from rest
+from ..kernel.frame import BROADCAST
+from .read import DEFAULT_HORIZON, EVENTS, RX_REASONS, TX_REASONS, Source, is_int, is_num, open_source
 
 
 # -- who is who ---------------------------------------------------------------------------------
@@ -179,7 +48,7 @@ class DeviceMap:
                 if "rx_channel" in d:
                     self._meta_rx.setdefault((d["rx_channel"], addr), dev)
                 hb = d.get("header_bytes")
-                self.header[dev] = hb if _is_int(hb) else 0
+                self.header[dev] = hb if is_int(hb) else 0
 
     def learn(self, ch: Any, src: int, dev: str) -> None:
         key = (ch, src)
@@ -407,8 +276,8 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
     for name, f in mflows.items():
         size = f.get("size")
         fm = FlowMetrics(name=name, src=f.get("src") if isinstance(f.get("src"), str) else None,
-                         dst=f.get("dst") if _is_int(f.get("dst")) else None,
-                         payload=size if _is_int(size) else None)
+                         dst=f.get("dst") if is_int(f.get("dst")) else None,
+                         payload=size if is_int(size) else None)
         accs[name] = _Acc(fm)
     frames: dict[tuple[str, int], _Frame] = {}
     max_tx_seq: dict[str, int] = {}
@@ -417,7 +286,7 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
     def acc_for(name: str, tx_dev: str, dst: Any) -> _Acc:
         a = accs.get(name)
         if a is None:
-            a = accs[name] = _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if _is_int(dst) else None))
+            a = accs[name] = _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if is_int(dst) else None))
         return a
 
     for rec in events:
@@ -447,7 +316,7 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
         a.t_last = t
         if m.src is None:
             m.src = tx_dev
-        if m.dst is None and _is_int(fr.dst) and fr.dst >= 0:
+        if m.dst is None and is_int(fr.dst) and fr.dst >= 0:
             m.dst = fr.dst
 
         if ev == "enq":
@@ -493,12 +362,12 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
 
     if end is None:
         dur = meta.get("duration")
-        end = max(dur if _is_num(dur) else -math.inf, t_end)
+        end = max(dur if is_num(dur) else -math.inf, t_end)
         if not math.isfinite(end):
             end = 0.0
     cons = _settle(frames, accs, devs, max_tx_seq, end, horizon, limit)
     duration = meta.get("duration")
-    flows = {name: _finish(a, mflows.get(name), duration if _is_num(duration) else None)
+    flows = {name: _finish(a, mflows.get(name), duration if is_num(duration) else None)
              for name, a in accs.items()}
     return Analysis(meta=meta, flows=flows, conservation=cons)
 
@@ -514,7 +383,7 @@ def _ctrl_flow(rec: Mapping[str, Any], tx_dev: str, devs: DeviceMap,
     fr = frames.get((tx_dev, seq))
     if fr is not None and (fr.dst == dst or fr.dst == BROADCAST):
         return fr.flow
-    if _is_int(dst) and dst != BROADCAST:
+    if is_int(dst) and dst != BROADCAST:
         fr = frames.get((devs.tx_dev(ch, dst), seq))
         if fr is not None and (fr.dst == src or fr.dst == BROADCAST):
             return fr.flow
@@ -601,9 +470,9 @@ def _finish(a: _Acc, mf: Mapping[str, Any] | None, duration: float | None) -> Fl
     w1: float | None = None
     if mf is not None:
         start = mf.get("start")
-        w0 = float(start) if _is_num(start) else 0.0
+        w0 = float(start) if is_num(start) else 0.0
         stop = mf.get("stop")
-        stop = float(stop) if _is_num(stop) else None
+        stop = float(stop) if is_num(stop) else None
         if stop is not None and duration is not None:
             w1 = min(stop, duration)
         else:
@@ -640,68 +509,3 @@ def conservation(path_or_events: Source, meta: dict[str, Any] | None = None, *,
     return analyse(path_or_events, meta, horizon=horizon, end=end).conservation
 
 
-# -- rendering ----------------------------------------------------------------------------------
-_COLUMNS = ("flow", "src", "dst", "enq", "sent", "uniq", "dlvd", "ratio", "thr B/s", "offer B/s", "eff %",
-            "delay s", "median s", "p95 s", "jitter s", "drops (final)")
-
-
-def _f(x: float | None, digits: int = 3) -> str:
-    if x is None:
-        return "-"
-    return f"{x:.{digits}f}"
-
-
-def _drops_str(d: Mapping[str, int]) -> str:
-    return " ".join(f"{r}:{n}" for r, n in d.items()) or "-"
-
-
-def _row(m: FlowMetrics) -> list[str]:
-    return [m.name, m.src or "-", "-" if m.dst is None else ("bcast" if m.broadcast else str(m.dst)),
-            str(m.enqueued), str(m.sent), str(m.unique_sent), str(m.delivered), _f(m.delivery_ratio),
-            _f(m.throughput, 2), _f(m.offered, 2),
-            _f(None if m.efficiency is None else 100.0 * m.efficiency, 1),
-            _f(m.delay_mean), _f(m.delay_median), _f(m.delay_p95), _f(m.jitter), _drops_str(m.drops)]
-
-
-def format_report(metrics: Mapping[str, FlowMetrics], title: str | None = "Per-flow metrics") -> Table:
-    """A rich Table of the per-flow metrics."""
-    table = Table(title=title)
-    for i, c in enumerate(_COLUMNS):
-        table.add_column(c, justify="left" if i < 2 or i == len(_COLUMNS) - 1 else "right",
-                         no_wrap=i < len(_COLUMNS) - 1)
-    for m in metrics.values():
-        table.add_row(*_row(m))
-    return table
-
-
-def _plain(header: list[str] | tuple[str, ...], rows: list[list[str]], left: set[int]) -> str:
-    widths = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(header)]
-
-    def line(cells: list[str] | tuple[str, ...]) -> str:
-        return "  ".join(c.ljust(w) if i in left else c.rjust(w)
-                         for i, (c, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
-
-    return "\n".join([line(header), "  ".join("-" * w for w in widths)] + [line(r) for r in rows]) + "\n"
-
-
-def format_text(metrics: Mapping[str, FlowMetrics]) -> str:
-    """The per-flow metrics as a plain-text table (no colours, no box characters)."""
-    return _plain(_COLUMNS, [_row(m) for m in metrics.values()], {0, 1, len(_COLUMNS) - 1})
-
-
-def report_json(metrics: Mapping[str, FlowMetrics]) -> dict[str, Any]:
-    """JSON-ready report: `{"version": 1, "flows": {name: FlowMetrics.to_dict()}}`."""
-    return {"version": 1, "flows": {name: m.to_dict() for name, m in metrics.items()}}
-
-
-def markdown_table(header: list[str], rows: list[list[str]]) -> str:
-    """A GitHub-flavoured markdown table (pipes in cells escaped)."""
-    def cells(r: list[str]) -> str:
-        return "| " + " | ".join(c.replace("|", "\\|") for c in r) + " |"
-    rule = "|" + "|".join("---" for _ in header) + "|"
-    return "\n".join([cells(header), rule] + [cells(r) for r in rows]) + "\n"
-
-
-def format_markdown(metrics: Mapping[str, FlowMetrics]) -> str:
-    """The per-flow metrics as a markdown table."""
-    return markdown_table(list(_COLUMNS), [_row(m) for m in metrics.values()])

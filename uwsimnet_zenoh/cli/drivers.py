@@ -105,7 +105,7 @@ def _session(args: argparse.Namespace) -> Iterator[Any]:
 
 
 def _world(s: Any, args: argparse.Namespace) -> str:
-    from .zenoh_backend import BackendError, discover_world
+    from ..drivers.zenoh_backend import BackendError, discover_world
 
     if args.world:
         return args.world
@@ -127,19 +127,20 @@ def _wait_for_signal() -> None:
 
 
 def cmd_driver(args: argparse.Namespace) -> int:
-    from ..bus.keys import Keys
-    from .zenoh_backend import query_info
-    from .zenoh_host import DriverHost
+    from uwsimnet_gli.wire import Keys
+
+    from ..drivers.zenoh_backend import query_info
+    from ..drivers.zenoh_host import DriverHost
 
     _log()
     with _session(args) as s:
         world = _world(s, args)
         if args.driver == "evologics":
-            from .evologics import EvoLogicsDriver
+            from ..drivers.evologics import EvoLogicsDriver
 
             drv: Any = EvoLogicsDriver(args.host, args.port, args.id, mode=args.mode)
         else:
-            from .serial_radio import SerialRadioDriver
+            from ..drivers.serial_radio import SerialRadioDriver
 
             address = args.address
             if address is None:
@@ -164,7 +165,7 @@ def cmd_driver(args: argparse.Namespace) -> int:
 
 def _serve(args: argparse.Namespace, what: str, start: Any) -> int:
     """Run `start(backend) -> (service, where)` on the simulated modem args.id until a signal."""
-    from .zenoh_backend import BackendError, ZenohBackend
+    from ..drivers.zenoh_backend import BackendError, ZenohBackend
 
     _log()
     with _session(args) as s:
@@ -186,7 +187,7 @@ def _serve(args: argparse.Namespace, what: str, start: Any) -> int:
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
-    from .emulators import EvoLogicsEmulator
+    from ..drivers.emulators import EvoLogicsEmulator
 
     if args.emulator == "serial":
         return _emulate_serial(args)
@@ -201,7 +202,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
 
 def _emulate_serial(args: argparse.Namespace) -> int:
     """`emulate serial`: a pty whose other end speaks dccomms frames, on simulated modem args.id."""
-    from .emulators import SerialRadioEmulator
+    from ..drivers.emulators import SerialRadioEmulator
 
     link = args.link
     if link and os.path.lexists(link) and not os.path.islink(link):     # the emulator replaces old links only

@@ -1,4 +1,4 @@
-"""`python -m uwsimnet_zenoh.experiments NAME --out DIR`: the paper's experiments with embedded defaults.
+"""`uwsimnet experiment NAME [--out DIR]`: the paper's experiments with embedded defaults.
 
 hil-formation runs in real time as separate processes over Zenoh (about 4 minutes); `--virtual` runs
 its virtual-time model alone (a second)."""
@@ -12,33 +12,40 @@ from pathlib import Path
 
 from ..errors import UserError
 
+NAMES = ("phy-layer", "twinbot", "hil-formation")
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m uwsimnet_zenoh.experiments")
-    ap.add_argument("name", choices=["phy-layer", "twinbot", "hil-formation"])
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """`uwsimnet experiment NAME`."""
+    ap = sub.add_parser("experiment", help="run one of the paper's experiments (figures + summary in --out)",
+                        description=__doc__.split("\n")[0])
+    ap.add_argument("name", choices=NAMES)
     ap.add_argument("--out", default=None, help="output folder (default out/NAME)")
     ap.add_argument("--duration", type=float, help="hil-formation: seconds to run (default 240)")
     ap.add_argument("--virtual", action="store_true", help="hil-formation: the virtual-time model only")
     ap.add_argument("--speed", type=float, help="hil-formation: simulated seconds per wall second (default 1)")
-    a = ap.parse_args(argv)
+    ap.set_defaults(fn=run)
+
+
+def run(a: argparse.Namespace) -> int:
     if a.name != "hil-formation" and (a.duration is not None or a.virtual or a.speed is not None):
-        ap.error("--duration, --speed and --virtual apply to hil-formation only")
+        raise UserError("uwsimnet experiment: --duration, --speed and --virtual apply to hil-formation only")
     if a.duration is not None and not 0 < a.duration < 1e6:
-        ap.error("--duration: seconds, a number > 0")
+        raise UserError("uwsimnet experiment: --duration: seconds, a number > 0")
     if a.speed is not None and (a.virtual or not a.speed > 0):
-        ap.error("--speed: a number > 0, for the real-time run")
+        raise UserError("uwsimnet experiment: --speed: a number > 0, for the real-time run")
     out = Path(a.out or f"out/{a.name}")
     kw: dict[str, float] = {} if a.duration is None else {"duration": a.duration}
     if a.speed is not None:
         kw["speed"] = a.speed
     if a.name == "phy-layer":
-        from . import phy_layer as experiment
+        from ..experiments import phy_layer as experiment
     elif a.name == "hil-formation" and a.virtual:
-        from . import hil_formation as experiment
+        from ..experiments import hil_formation as experiment
     elif a.name == "hil-formation":
-        from . import hil_realtime as experiment
+        from ..experiments import hil_realtime as experiment
     else:
-        from . import twinbot as experiment
+        from ..experiments import twinbot as experiment
 
     def interrupt(*_: object) -> None:
         raise KeyboardInterrupt
@@ -46,19 +53,13 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, interrupt)     # like Ctrl-C: the child processes are stopped, not orphaned
     try:
         experiment.run(out, **kw)
-    except UserError as e:
-        print(e, file=sys.stderr)
-        return 2
     except RuntimeError as e:                    # a child process failed: its log tail says why
-        print(f"uwsimnet-experiments: {e}", file=sys.stderr)
+        print(f"uwsimnet experiment: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:                    # child processes were stopped on the way out
-        print("uwsimnet-experiments: interrupted", file=sys.stderr)
+        print("uwsimnet experiment: interrupted", file=sys.stderr)
         return 130
     print((out / "summary.md").read_text())
     print(f"figures and traces in {out}/")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

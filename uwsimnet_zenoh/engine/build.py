@@ -1,9 +1,9 @@
-"""From the scene's acoustic specs to physics: the one place where an `AcousticCommsChannel` and an
-`AcousticCommsDevice` become numbers (sound speed, `AcousticChannelParams`, `AcousticModemParams`, the
-loss model a modem uses).
+"""The build step (ns-3's helpers): a scene's device and channel specs become running parts.
 
-Used by `scene.model` (to derive a channel's propagation delay and a device's default bit rate) and by
-`engine.network` (to give an acoustic modem its `AcousticLink` as `Modem.error`).  Sans-IO, numpy only.
+`build_modem` makes one `phy.Modem` with its loss model (the rateErrorModel expression, or the acoustic
+physics) and its MAC (`mac.resolve`), so models never build their collaborators.  This is also the one place
+where an `AcousticCommsChannel` and an `AcousticCommsDevice` become numbers (`AcousticChannelParams`,
+`AcousticModemParams`, the `AcousticLink` a modem uses as its loss model).  Sans-IO, numpy only.
 
 Resolution of a device's parameters, first match wins:
     carrier     device frequency (kHz) > preset > 25 kHz (the original's AcousticROSCommsDevice default)
@@ -20,16 +20,22 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
-import numpy as np
-
-from .acoustic import PRESETS, AcousticChannelParams, AcousticLink, AcousticModemParams, per_from_ber
+from ..mac import Mac, resolve
+from ..phy.acoustic import PRESETS, AcousticChannelParams, AcousticLink, AcousticModemParams, FixedBerLink
+from ..phy.error import RateErrorModel
+from ..phy.modem import Modem
 
 if TYPE_CHECKING:
-    from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device
+    from collections.abc import Callable
 
-__all__ = ["DEFAULT_CARRIER_KHZ", "DEFAULT_POWER_W", "FixedBerLink", "build_error_model", "channel_options",
-           "channel_params",
-           "default_bitrate", "modem_error_model", "modem_params", "prop_s_per_m", "sound_speed"]
+    from ..kernel.scheduler import Scheduler
+    from ..phy.channel import Channel as PhyChannel
+    from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device, MacSpec
+    from ..trace.events import Tracer
+
+__all__ = ["DEFAULT_CARRIER_KHZ", "DEFAULT_POWER_W", "FixedBerLink", "build_error_model", "build_modem",
+           "channel_options", "channel_params", "default_bitrate", "make_mac", "modem_error_model",
+           "modem_params", "prop_s_per_m", "sound_speed"]
 
 DEFAULT_CARRIER_KHZ = 25.0
 """Carrier when neither the device nor a preset gives one (dccomms_ros AcousticROSCommsDevice default)."""
@@ -39,11 +45,7 @@ DEFAULT_POWER_W = 0.2818
 
 def channel_params(spec: AcousticChannelSpec, spreading_k: float | None = None) -> AcousticChannelParams:
     """The physics of a channel spec (``spreading_k`` overrides the channel's, for a device's K)."""
-    return AcousticChannelParams(
-        temperature_c=spec.temperature_c, salinity_ppt=spec.salinity_ppt, depth_m=spec.depth_m, ph=spec.ph,
-        spreading_k=spec.spreading_k if spreading_k is None else spreading_k, absorption=spec.absorption,
-        shipping=spec.shipping, wind_mps=spec.wind_mps, noise_psd_db=spec.noise_psd_db,
-        noise_level_db=spec.noise_level_db, sound_speed_mps=spec.sound_speed_mps)
+    return spec.params(spreading_k)
 
 
 def sound_speed(spec: AcousticChannelSpec) -> float:
@@ -85,36 +87,6 @@ def modem_params(dev: AcousticDeviceSpec, channel: AcousticChannelSpec, bitrate:
     return replace(base, **changes)
 
 
-class FixedBerLink:
-    """An `AcousticLink` whose noise-limited bit error rate is a constant (legacy ``bitErrorRate``).
-
-    per(d, L) = 1 - (1 - BER)^(8L) at every distance; the received power, the noise and PER from SINR
-    (capture) stay the physics of the wrapped link, with PER(SINR) never below the fixed PER.
-    """
-
-    __slots__ = ("link", "ber")
-
-    def __init__(self, link: AcousticLink, ber: float) -> None:
-        self.link = link
-        self.ber = float(ber)
-
-    def __repr__(self) -> str:
-        return f"FixedBerLink({self.link!r}, ber={self.ber:g})"
-
-    def per(self, distance_m: np.ndarray | float, size_bytes: int) -> np.ndarray:
-        return np.full(np.shape(distance_m), float(per_from_ber(self.ber, size_bytes)))
-
-    def received_power(self, distance_m: np.ndarray | float) -> np.ndarray:
-        return self.link.received_power(distance_m)
-
-    @property
-    def noise_power(self) -> float:
-        return self.link.noise_power
-
-    def per_from_sinr(self, sinr_db: float, size_bytes: int) -> float:
-        return max(float(per_from_ber(self.ber, size_bytes)), float(self.link.per_from_sinr(sinr_db, size_bytes)))
-
-
 def build_error_model(device: Device, channel: Channel) -> AcousticLink | FixedBerLink:
     """The loss model (``Modem.error``) of an acoustic device transmitting on ``channel``.
 
@@ -154,3 +126,18 @@ def modem_error_model(device: Device, tx_channel: Channel,
         raise ValueError(f"device {device.dccomms_id!r}: an AcousticCommsDevice needs an AcousticCommsChannel,"
                          f" channel {rx_channel.id} is a CustomCommsChannel")
     return build_error_model(device, tx_channel)
+
+
+def make_mac(modem: Modem, spec: MacSpec) -> Mac:
+    """The MAC a device's `<macProtocol>` names, built with its modem as the MAC's context."""
+    return resolve(spec.name)(modem, dict(spec.params))
+
+
+def build_modem(cfg: Device, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
+                tx: PhyChannel, rx: PhyChannel, seeds: Callable[[str, str], int],
+                tx_spec: Channel, rx_spec: Channel) -> Modem:
+    """One modem with its loss model and its MAC, listening on its rx channel."""
+    error = modem_error_model(cfg, tx_spec, rx_spec) or RateErrorModel(cfg.error.expr, cfg.error.unit)
+    modem = Modem(cfg, vehicle, vehicle_index, sched, tracer, tx, rx, seeds, error)
+    modem.attach_mac(make_mac(modem, cfg.mac))
+    return modem

@@ -1,4 +1,5 @@
-"""`uwsimnet`: run, validate, report and plot.
+"""`uwsimnet`: the one command (run, validate, report, plot, router, and the driver/bridge/deploy/experiment
+sub-commands registered by their modules in this package).
 
 Every user error ends as one line on stderr and exit code 2 (scene errors as `file:line: message`);
 a traceback here is a bug.
@@ -13,68 +14,17 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-from .errors import UserError
-
-
-def _warn(msg: str) -> None:
-    print(msg, file=sys.stderr)
-
-
-def _load(path: str):
-    from .scene.load import SceneError, load_scene
-
-    if not Path(path).is_file():
-        raise UserError(f"{path}: no such scene file")
-    try:
-        return load_scene(path, on_warning=_warn)
-    except SceneError as e:
-        raise UserError(str(e)) from None
+from ..app.virtual import load_scene_file, print_summary, run_virtual, show_metrics
+from ..errors import UserError
+from . import deploy, drivers, experiment
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    scene = _load(args.scene)
+    scene = load_scene_file(args.scene)
     n_dev = len(scene.devices())
     print(f"{args.scene}: ok ({len(scene.channels)} channels, {len(scene.vehicles)} vehicles, {n_dev} devices,"
           f" {len(scene.flows)} flows)")
     return 0
-
-
-def run_virtual(scene, *, seed: int | None, duration: float | None, trace_path: Path,
-                progress: bool = True):
-    """Run a scene in virtual time, writing the JSONL trace; returns the Network."""
-    from .engine.network import Network
-    from .trace.events import CallbackSink, JsonlSink, load_tracing_class
-
-    try:
-        net = Network(scene, seed=seed, duration=duration)
-    except ValueError as e:
-        raise UserError(f"{scene.source}: {e}") from None
-    if scene.tracing.class_name:
-        try:
-            net.tracer.add(CallbackSink(load_tracing_class(scene.tracing.class_name)))
-        except ValueError as e:
-            raise UserError(f"{scene.source}:{scene.tracing.line}: {e}") from None
-    trace_path.parent.mkdir(parents=True, exist_ok=True)
-    with open(trace_path, "w", encoding="utf-8") as fh:
-        sink = JsonlSink(fh)
-        sink.header(net.meta())
-        net.tracer.add(sink)
-        _advance(net, net.duration, progress)
-    return net
-
-
-def _advance(net, end: float, progress: bool) -> None:
-    """Run to `end` in slices so a long run can show progress (the slicing changes nothing else)."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-    show = progress and sys.stderr.isatty()
-    with Progress(TextColumn("[bold]simulating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
-                  TimeRemainingColumn(), transient=True, disable=not show) as bar:
-        task = bar.add_task("sim", total=end)
-        steps = 200
-        for i in range(1, steps + 1):
-            net.run(end * i / steps)
-            bar.update(task, completed=net.now)
 
 
 def default_clock(scene, args: argparse.Namespace) -> str:
@@ -88,54 +38,35 @@ def default_clock(scene, args: argparse.Namespace) -> str:
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    from .bus.router import run_router  # noqa: PLC0415 - zenoh only when needed
+    from ..bus.router import run_router  # noqa: PLC0415 - zenoh only when needed
 
     return run_router(args)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    scene = _load(args.scene)
+    scene = load_scene_file(args.scene)
     if args.world:
         scene = scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"world": args.world})})
     clock = args.clock or default_clock(scene, args)
     if clock == "realtime":
-        from .bus.runtime import run_realtime  # noqa: PLC0415 - zenoh only when needed
+        from ..app.realtime import run_realtime  # noqa: PLC0415 - zenoh only when needed
 
         return run_realtime(scene, args)
     trace = args.trace or scene.tracing.log_to_file
     if trace:
         net = run_virtual(scene, seed=args.seed, duration=args.duration, trace_path=Path(trace))
-        _summary(trace, net)
+        print_summary(trace, net)
         print(f"trace: {trace}")
         return 0
     with tempfile.TemporaryDirectory() as tmp:     # the summary is computed from a trace all the same
         path = Path(tmp) / "trace.jsonl"
         net = run_virtual(scene, seed=args.seed, duration=args.duration, trace_path=path)
-        _summary(str(path), net)
+        print_summary(str(path), net)
     return 0
 
 
-def show_metrics(metrics) -> None:
-    """The per-flow table: rich on a terminal, plain aligned text when piped (rich would squeeze it)."""
-    from .trace.report import format_report, format_text
-
-    if sys.stdout.isatty():
-        from rich.console import Console
-
-        Console().print(format_report(metrics))
-    else:
-        print(format_text(metrics))
-
-
-def _summary(trace: str, net) -> None:
-    from .trace.report import flow_metrics
-
-    show_metrics(flow_metrics(trace))
-    print(f"{net.scene.name}: {net.duration:g} s simulated, seed {net.seed}, {net.sched.events_run} events")
-
-
 def cmd_report(args: argparse.Namespace) -> int:
-    from .trace.report import TraceError, flow_metrics, report_json
+    from ..analysis import TraceError, flow_metrics, report_json
 
     if not Path(args.trace).is_file():
         raise UserError(f"{args.trace}: no such trace file")
@@ -151,8 +82,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from .trace.plot import plot_trace
-    from .trace.report import TraceError
+    from ..analysis import TraceError
+    from ..analysis.figures import plot_trace
 
     if not Path(args.trace).is_file():
         raise UserError(f"{args.trace}: no such trace file")
@@ -209,9 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("-o", "--out", default="figures")
     pl.set_defaults(fn=cmd_plot)
 
-    from .drivers.commands import add_commands  # noqa: PLC0415 - driver / emulate / bridge
-
-    add_commands(sub)
+    for add_commands in (drivers.add_commands, experiment.add_commands, deploy.add_commands):
+        add_commands(sub)
     return p
 
 
@@ -226,6 +156,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 130
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -23,7 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from rich.table import Table
 
-from .report import (
+from . import (
     EVENTS,
     DeviceMap,
     FlowMetrics,

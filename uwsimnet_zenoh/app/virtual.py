@@ -1,0 +1,81 @@
+"""Virtual-time runs: a scene file to a Network run to its end, its JSONL trace, and the summary table.
+
+The one assembly of Network + trace sinks for the virtual clock, used by `uwsimnet run`, the experiments and
+the tests (app/realtime.py is its realtime twin)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+from ..analysis import flow_metrics, format_report, format_text
+from ..engine.network import Network
+from ..errors import UserError
+from ..scene.load import SceneError, load_scene
+from ..trace.events import CallbackSink, JsonlSink, load_tracing_class
+
+
+def _warn(msg: str) -> None:
+    print(msg, file=sys.stderr)
+
+
+def load_scene_file(path: str):
+    """A scene from a file, or UserError with the one-line `file:line: message`."""
+    if not Path(path).is_file():
+        raise UserError(f"{path}: no such scene file")
+    try:
+        return load_scene(path, on_warning=_warn)
+    except SceneError as e:
+        raise UserError(str(e)) from None
+
+
+def run_virtual(scene, *, seed: int | None, duration: float | None, trace_path: Path,
+                progress: bool = True):
+    """Run a scene in virtual time, writing the JSONL trace; returns the Network."""
+    try:
+        net = Network(scene, seed=seed, duration=duration)
+    except ValueError as e:
+        raise UserError(f"{scene.source}: {e}") from None
+    if scene.tracing.class_name:
+        try:
+            net.tracer.add(CallbackSink(load_tracing_class(scene.tracing.class_name)))
+        except ValueError as e:
+            raise UserError(f"{scene.source}:{scene.tracing.line}: {e}") from None
+    trace_path.parent.mkdir(parents=True, exist_ok=True)
+    with open(trace_path, "w", encoding="utf-8") as fh:
+        sink = JsonlSink(fh)
+        sink.header(net.meta())
+        net.tracer.add(sink)
+        _advance(net, net.duration, progress)
+    return net
+
+
+def _advance(net, end: float, progress: bool) -> None:
+    """Run to `end` in slices so a long run can show progress (the slicing changes nothing else)."""
+    show = progress and sys.stderr.isatty()
+    with Progress(TextColumn("[bold]simulating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+                  TimeRemainingColumn(), transient=True, disable=not show) as bar:
+        task = bar.add_task("sim", total=end)
+        steps = 200
+        for i in range(1, steps + 1):
+            net.run(end * i / steps)
+            bar.update(task, completed=net.now)
+
+
+def show_metrics(metrics) -> None:
+    """The per-flow table: rich on a terminal, plain aligned text when piped (rich would squeeze it)."""
+    if sys.stdout.isatty():
+        Console().print(format_report(metrics))
+    else:
+        print(format_text(metrics))
+
+
+def print_summary(trace: str, net) -> None:
+    """The per-flow table of a finished run, and one line on what was simulated."""
+    show_metrics(flow_metrics(trace))
+    print(f"{net.scene.name}: {net.duration:g} s simulated, seed {net.seed}, {net.sched.events_run} events")
+
+

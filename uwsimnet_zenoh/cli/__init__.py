@@ -1,0 +1,6 @@
+"""The faces: the one `uwsimnet` command (main.py builds the parser; drivers.py, deploy.py and
+experiment.py add their sub-commands).  Imports any room; nothing imports it but the entry point."""
+
+from .main import main
+
+__all__ = ["main"]

@@ -1,0 +1,79 @@
+"""The native extensions: `<flow>` (traffic sources) and their checks against the scene."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from .model import (
+    BROADCAST,
+    Device,
+    Flow,
+)
+from .xml import XmlReader, _El, _Fields
+
+
+class NativeVocabulary(XmlReader):
+    """Mixin: flows."""
+
+    # --- flows ---------------------------------------------------------------------------------------
+
+    def flow(self, el: _El, index: int) -> tuple[Flow, dict[str, _El]]:
+        k = self.kids(el, single=("name", "src", "dst", "size", "interval", "rate", "arrival", "start",
+                                  "stop"))
+        f = _Fields()
+        els: dict[str, _El] = {tag: k.get(tag) for tag in k.by}
+        if (e := k.get("name")) is not None:
+            f.set("name", self.string(e), "name", e)
+        else:
+            f.values["name"] = f"flow{index}"
+        src = self.need(k, "src")
+        f.set("src", self.string(src), "src", src)
+        for tag in ("dst", "size"):
+            e = self.need(k, tag)
+            v, raw = self.integer(e)
+            f.set(tag, v, tag, e, raw)
+        interval, rate = k.get("interval"), k.get("rate")
+        if interval is not None and rate is not None:
+            later = max(interval, rate, key=lambda x: x.sourceline or 0)
+            self.fail(later, "flow: give either <interval> or <rate>, not both")
+        if interval is not None:
+            v, raw = self.number(interval)
+            f.set("interval", v, "interval", interval, raw)
+        elif rate is not None:
+            v, raw = self.number(rate)
+            if v <= 0:
+                self.fail(rate, f"rate: must be greater than 0, got {raw}")
+            f.set("interval", 1.0 / v, "rate", rate, raw)
+        else:
+            self.fail(el, "flow: missing <interval> (s) or <rate> (frames/s)")
+        if (e := k.get("arrival")) is not None:
+            f.set("arrival", self.choice(e, ("periodic", "poisson")), "arrival", e)
+        for tag in ("start", "stop"):
+            if (e := k.get(tag)) is not None:
+                v, raw = self.number(e)
+                f.set(tag, v, tag, e, raw)
+        if "stop" in f.values and f.values["stop"] <= f.values.get("start", 0.0):
+            start = f.where["start"].raw if "start" in f.where else "0"
+            self.fail(k.get("stop"), f"stop: must be after start (stop {f.where['stop'].raw}, start {start})")
+        return self.build(Flow, el, f), els
+
+    def check_flow(self, flow: Flow, els: dict[str, _El],
+                   devices: Mapping[str, tuple[Device, dict[str, _El]]]) -> None:
+        if flow.src not in devices:
+            if flow.src in self.disabled:
+                self.fail(els["src"], f"src: device {flow.src!r} is disabled"
+                                      f" (line {self.disabled[flow.src]})")
+            self.fail(els["src"], f"src: no device with dccommsId {flow.src!r}")
+        dev = devices[flow.src][0]
+        on_air = flow.size + dev.header_bytes
+        if on_air > dev.max_frame_bytes:
+            head = f" + headerBytes {dev.header_bytes} = {on_air}" if dev.header_bytes else ""
+            self.fail(els["size"], f"size: {flow.size}{head} bytes exceeds maxFrameBytes"
+                                   f" {dev.max_frame_bytes} of device {dev.dccomms_id!r}")
+        if flow.dst != BROADCAST:
+            hearing = [d for d, _ in devices.values()
+                       if d.rx_channel == dev.tx_channel and d.address == flow.dst]
+            if not hearing:
+                self.warn(els["dst"], f"flow {flow.name!r}: no device listening on channel {dev.tx_channel}"
+                                      f" has address {flow.dst}")
+
