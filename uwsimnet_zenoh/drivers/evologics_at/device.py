@@ -1,0 +1,277 @@
+"""The device side of the EvoLogics AT protocol (what the emulator speaks): a host's bytes to commands, and
+the modem's replies and notifications."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from .events import _CMD, _SEND_FIELDS, _SEND_HEAD, BURST_MAX, IM_FLAGS, IM_MAX, MAX_LINE, _int, _show
+
+
+# =================================================================================================
+# Modem side
+# =================================================================================================
+@dataclass(frozen=True)
+class Command:
+    """A plain AT command: `AT<prefix><name><arg>`, e.g. `AT?AL` -> ('?AL', ''), `AT!L3` -> ('!L', '3'),
+    `ATZ1` -> ('Z', '1'), `AT@ZX1` -> ('@ZX', '1')."""
+
+    name: str
+    arg: str
+    raw: bytes
+
+
+@dataclass(frozen=True)
+class SendCommand:
+    """`AT*SEND`, `AT*SENDIM`, `AT*SENDIMS` or `AT*SENDPBM` with its binary payload."""
+
+    name: str                # *SEND | *SENDIM | *SENDIMS | *SENDPBM
+    dst: int
+    data: bytes
+    flag: str | None = None  # *SENDIM: ack | noack | force
+    timestamp_us: int | None = None
+    pid: int | None = None
+
+
+@dataclass(frozen=True)
+class BadCommand:
+    """Input the modem cannot take; `reply` is the line a device answers with."""
+
+    kind: str            # garbage | format | length | overflow | timeout
+    detail: str
+    raw: bytes
+    reply: str = "ERROR WRONG FORMAT"
+
+
+DeviceEvent = Command | SendCommand | BadCommand
+_EOL = (b"\r", b"\n")
+
+
+class DeviceCodec:
+    """The modem end: parse host commands (binary payloads included), build answers and notifications.
+
+    A command ends at `\\r`, `\\n` or `\\r\\n`.  For `AT*SEND*` the length field decides how many bytes
+    of data follow (they may contain end-of-line bytes); the end of line must follow them, otherwise
+    the command is refused (`BadCommand('length')`) and the parser resumes after the first end of
+    line that follows the data's start.  `expire(now)` refuses a command whose data stopped coming.
+    """
+
+    def __init__(self, payload_timeout: float = 2.0, max_data: int = BURST_MAX) -> None:
+        self.payload_timeout = payload_timeout
+        self.max_data = max_data
+        self._buf = bytearray()
+        self._partial_since: float | None = None
+        self._skip_lf = False
+        self._head_end = 0           # where the data of a *SEND waiting for its bytes starts
+
+    def feed(self, data: bytes | bytearray | memoryview, now: float | None = None) -> list[DeviceEvent]:
+        self._buf += data
+        out: list[DeviceEvent] = []
+        self._parse(out)
+        self._partial_since = now if self._buf else None     # a stall is counted from the last byte
+        return out
+
+    def expire(self, now: float) -> list[DeviceEvent]:
+        if not self._buf:
+            return []
+        if self._partial_since is None:
+            self._partial_since = now
+            return []
+        if now - self._partial_since <= self.payload_timeout:
+            return []
+        raw = self._drop_line(self._head_end)
+        self._head_end = 0
+        out: list[DeviceEvent] = [BadCommand("timeout", f"incomplete command dropped after "
+                                             f"{self.payload_timeout:g} s: {_show(raw)}", raw)]
+        self._parse(out)
+        self._partial_since = now if self._buf else None
+        return out
+
+    def _eol_at(self, start: int) -> int:
+        buf = self._buf
+        a, b = buf.find(b"\r", start), buf.find(b"\n", start)
+        if a < 0:
+            return b
+        if b < 0:
+            return a
+        return min(a, b)
+
+    def _consume_eol(self, i: int) -> None:
+        """Delete up to and including the end of line at i (a following LF after CR goes too)."""
+        buf = self._buf
+        n = 1
+        if buf[i:i + 1] == b"\r":
+            if i + 1 < len(buf):
+                n = 2 if buf[i + 1:i + 2] == b"\n" else 1
+            else:
+                self._skip_lf = True
+        del buf[:i + n]
+
+    def _parse(self, out: list[DeviceEvent]) -> None:
+        buf = self._buf
+        while buf:
+            if self._skip_lf:
+                self._skip_lf = False
+                if buf[:1] == b"\n":
+                    del buf[:1]
+                    continue
+            m = _SEND_HEAD.match(buf)
+            if m is not None:
+                if not self._send(m, out):
+                    return
+                continue
+            i = self._eol_at(0)
+            if i < 0:
+                if len(buf) > MAX_LINE:
+                    raw = bytes(buf)
+                    buf.clear()
+                    out.append(BadCommand("overflow", f"{len(raw)} bytes without an end of line", raw))
+                return
+            raw = bytes(buf[:i])
+            self._consume_eol(i)
+            if raw.strip() == b"":
+                continue
+            self._command(raw, out)
+
+    def _command(self, raw: bytes, out: list[DeviceEvent]) -> None:
+        try:
+            text = raw.decode("ascii").strip()
+        except UnicodeDecodeError:
+            out.append(BadCommand("garbage", f"non-ASCII command {_show(raw)}", raw))
+            return
+        m = _CMD.fullmatch(text.upper()) if text[:2].upper() == "AT" else None
+        if m is None:
+            out.append(BadCommand("garbage", f"not an AT command: {text!r}", raw))
+            return
+        prefix, letters, arg = m.groups()
+        if not prefix and len(letters) > 1 and letters[0] in "ZIHCOASN":
+            letters, arg = letters[0], letters[1:] + arg   # ATZ1, ATI7, ATH0, ATC, ATO ...
+        out.append(Command(prefix + letters, text[2 + len(prefix) + len(letters):], raw))
+
+    def _send(self, m: re.Match, out: list[DeviceEvent]) -> bool:
+        buf = self._buf
+        name = "*SEND" + m.group(1).decode().upper()
+        nfields = _SEND_FIELDS[name]
+        pos = m.end()
+        commas: list[int] = []
+        j = pos
+        while len(commas) < nfields:
+            k = buf.find(b",", j)
+            e = self._eol_at(j)
+            if k < 0 or (0 <= e < k):
+                if e >= 0 or len(buf) - pos > 64:
+                    raw = self._drop_line(0)
+                    out.append(BadCommand("format", f"AT{name} with too few fields: {_show(raw)}", raw))
+                    return True
+                return False
+            commas.append(k)
+            j = k + 1
+        starts = [pos] + [c + 1 for c in commas[:-1]]
+        f = [bytes(buf[a:b]) for a, b in zip(starts, commas, strict=True)]
+        head_end = commas[-1] + 1
+        try:
+            n = _int(f[0])
+            dst = _int(f[1])
+            flag = ts = None
+            if name == "*SENDIM":
+                flag = f[2].decode("ascii").lower()
+                if flag not in IM_FLAGS:
+                    raise ValueError(f"unknown flag {flag!r}")
+            elif name == "*SENDIMS":
+                ts = _int(f[2]) if f[2] else None
+        except (ValueError, UnicodeDecodeError) as e:
+            raw = self._drop_line(0)
+            out.append(BadCommand("format", f"AT{name}: {e}: {_show(raw)}", raw))
+            return True
+        limit = self.max_data if name == "*SEND" else min(self.max_data, IM_MAX)
+        if not 0 <= n <= limit:
+            raw = self._drop_line(head_end)
+            out.append(BadCommand("length", f"AT{name} length {n} out of range (0..{limit})", raw,
+                                  "ERROR OUT OF RANGE"))
+            return True
+        if len(buf) < head_end + n + 1:
+            self._head_end = head_end
+            return False
+        self._head_end = 0
+        end = head_end + n
+        if buf[end:end + 1] not in _EOL:
+            raw = self._drop_line(head_end)
+            out.append(BadCommand("length", f"AT{name}: {n} bytes of data are not followed by an end of line "
+                                  f"(wrong length field): {_show(raw)}", raw))
+            return True
+        data = bytes(buf[head_end:end])
+        pid = int(m.group(2)[1:-1]) if m.group(2) else None
+        self._consume_eol(end)
+        out.append(SendCommand(name, dst, data, flag, ts, pid))
+        return True
+
+    def _drop_line(self, start: int) -> bytes:
+        i = self._eol_at(start)
+        if i < 0:
+            raw = bytes(self._buf)
+            self._buf.clear()
+            return raw
+        raw = bytes(self._buf[:i])
+        self._consume_eol(i)
+        return raw
+
+
+# -- what the modem writes ------------------------------------------------------------------------
+CRLF = b"\r\n"
+
+
+def line(text: str) -> bytes:
+    return text.encode("ascii") + CRLF
+
+
+def ok() -> bytes:
+    return b"OK\r\n"
+
+
+def busy(reason: str) -> bytes:
+    return line(f"BUSY {reason}")
+
+
+def error(reason: str) -> bytes:
+    return line(f"ERROR {reason}")
+
+
+def block(lines: list[str]) -> bytes:
+    """A multi-line answer (`AT&V`): the lines, then an empty line."""
+    return b"".join(line(x) for x in lines) + CRLF
+
+
+def recv(src: int, dst: int, data: bytes, bitrate: int, rssi: int, integrity: int, prop_time_us: int,
+         velocity: float) -> bytes:
+    head = f"RECV,{len(data)},{src},{dst},{bitrate},{rssi},{integrity},{prop_time_us},{velocity:.2f},"
+    return head.encode("ascii") + bytes(data) + CRLF
+
+
+def recvim(src: int, dst: int, data: bytes, flag: str, duration_us: int, rssi: int, integrity: int,
+           velocity: float) -> bytes:
+    head = f"RECVIM,{len(data)},{src},{dst},{flag},{duration_us},{rssi},{integrity},{velocity:.2f},"
+    return head.encode("ascii") + bytes(data) + CRLF
+
+
+def recvpbm(src: int, dst: int, data: bytes, duration_us: int, rssi: int, integrity: int,
+            velocity: float) -> bytes:
+    head = f"RECVPBM,{len(data)},{src},{dst},{duration_us},{rssi},{integrity},{velocity:.2f},"
+    return head.encode("ascii") + bytes(data) + CRLF
+
+
+def delivered(dst: int, count: int | None = None) -> bytes:
+    """`DELIVEREDIM,<dst>` (count None) or burst `DELIVERED,<count>,<dst>`."""
+    return line(f"DELIVEREDIM,{dst}" if count is None else f"DELIVERED,{count},{dst}")
+
+
+def failed(dst: int, count: int | None = None) -> bytes:
+    return line(f"FAILEDIM,{dst}" if count is None else f"FAILED,{count},{dst}")
+
+
+def canceled(dst: int, kind: str = "IM") -> bytes:
+    return line(f"CANCELED{kind},{dst}")
+
+
+def notification(name: str, *fields: object) -> bytes:
+    return line(",".join([name, *(str(f) for f in fields)]))
