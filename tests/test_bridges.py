@@ -14,8 +14,10 @@ import pytest
 from conftest import device, scene, vehicle
 
 from uwsimnet_zenoh.bridges import posix_mq
-from uwsimnet_zenoh.bridges import socket_bridge as sb
+from uwsimnet_zenoh.bridges import socket_wire as sw
 from uwsimnet_zenoh.bridges.mq_bridge import GliQueueClient, MqBridge
+from uwsimnet_zenoh.bridges.socket_bridge import SocketBridge
+from uwsimnet_zenoh.bridges.socket_client import SocketBridgeClient
 from uwsimnet_zenoh.drivers import dccomms_framing as dl
 from uwsimnet_zenoh.drivers.sim_backend import SimWorld
 
@@ -62,29 +64,29 @@ def closing():
 # socket bridge wire format
 # =================================================================================================
 def test_wire_format_vectors():
-    assert sb.encode_tx(2, b"hi", 7) == b"\x00\x00\x00\x09\x02\x00\x02\x00\x00\x00\x07hi"
-    assert sb.encode_hello(1, 2048, "dev-a") == b"\x00\x00\x00\x0a\x01\x00\x01\x08\x00dev-a"
-    rx = sb.encode_rx(1, 2, b"x", 5, 1.5, 2.0)
+    assert sw.encode_tx(2, b"hi", 7) == b"\x00\x00\x00\x09\x02\x00\x02\x00\x00\x00\x07hi"
+    assert sw.encode_hello(1, 2048, "dev-a") == b"\x00\x00\x00\x0a\x01\x00\x01\x08\x00dev-a"
+    rx = sw.encode_rx(1, 2, b"x", 5, 1.5, 2.0)
     assert rx[:4] == (26).to_bytes(4, "big") and rx[4] == 3
-    assert sb.decode_body(rx[4:]) == sb.Rx(1, 2, 5, 1.5, 2.0, b"x")
-    st = sb.encode_status(7, "acked", 3.25, None)
-    assert sb.decode_body(st[4:]) == sb.Status(7, "acked", 3.25, "")
-    assert sb.decode_body(sb.encode_status(1, "dropped", 0.0, "fifo")[4:]).reason == "fifo"
-    assert sb.decode_datagram(sb.encode_subscribe()) == sb.Subscribe()
+    assert sw.decode_body(rx[4:]) == sw.Rx(1, 2, 5, 1.5, 2.0, b"x")
+    st = sw.encode_status(7, "acked", 3.25, None)
+    assert sw.decode_body(st[4:]) == sw.Status(7, "acked", 3.25, "")
+    assert sw.decode_body(sw.encode_status(1, "dropped", 0.0, "fifo")[4:]).reason == "fifo"
+    assert sw.decode_datagram(sw.encode_subscribe()) == sw.Subscribe()
 
 
 def test_stream_decoder_partial_and_malformed_input():
-    d = sb.StreamDecoder()
-    wire = sb.encode_tx(2, b"a\r\nb", 1) + sb.encode_tx(3, b"", 0)
+    d = sw.StreamDecoder()
+    wire = sw.encode_tx(2, b"a\r\nb", 1) + sw.encode_tx(3, b"", 0)
     msgs = [m for i in range(len(wire)) for m in d.feed(wire[i:i + 1])[0]]
-    assert msgs == [sb.Tx(2, 1, b"a\r\nb"), sb.Tx(3, 0, b"")]
-    msgs, errs = d.feed(b"\x00\x00\x00\x02\x09\x00" + b"\x00\x00\x00\x03\x02\x00\x01" + sb.encode_tx(4, b"ok"))
-    assert msgs == [sb.Tx(4, 0, b"ok")] and len(errs) == 2 and "unknown message type 9" in errs[0]
+    assert msgs == [sw.Tx(2, 1, b"a\r\nb"), sw.Tx(3, 0, b"")]
+    msgs, errs = d.feed(b"\x00\x00\x00\x02\x09\x00" + b"\x00\x00\x00\x03\x02\x00\x01" + sw.encode_tx(4, b"ok"))
+    assert msgs == [sw.Tx(4, 0, b"ok")] and len(errs) == 2 and "unknown message type 9" in errs[0]
     msgs, errs = d.feed(b"\xff\xff\xff\xff")
     assert d.broken and "out of range" in errs[0]
-    for bad in (b"\x00\x00", b"\x00\x00\x00\x05\x02", sb.encode_tx(1, bytes(sb.MAX_DATA + 1))):
-        with pytest.raises(sb.WireError):
-            sb.decode_datagram(bad)
+    for bad in (b"\x00\x00", b"\x00\x00\x00\x05\x02", sw.encode_tx(1, bytes(sw.MAX_DATA + 1))):
+        with pytest.raises(sw.WireError):
+            sw.decode_datagram(bad)
 
 
 # =================================================================================================
@@ -102,11 +104,11 @@ def c_client(tmp_path_factory):
 
 
 def test_c_program_and_python_client_exchange_frames(world, closing, c_client):
-    bra = sb.SocketBridge(world.backend("dev-a")).start()
-    brb = sb.SocketBridge(world.backend("dev-b")).start()
+    bra = SocketBridge(world.backend("dev-a")).start()
+    brb = SocketBridge(world.backend("dev-b")).start()
     closing += [bra, brb]
     world.start()
-    py = sb.SocketBridgeClient("127.0.0.1", brb.tcp_port)
+    py = SocketBridgeClient("127.0.0.1", brb.tcp_port)
     closing.append(py)
     assert (py.address, py.id) == (2, "dev-b")
     # the C program sends 3 frames to B, then waits for 2 frames
@@ -137,33 +139,33 @@ def test_c_program_and_python_client_exchange_frames(world, closing, c_client):
 
 
 def test_socket_bridge_errors_and_udp(world, closing):
-    br = sb.SocketBridge(world.backend("dev-a"), udp_port=0).start()
-    py_b = sb.SocketBridge(world.backend("dev-b")).start()
+    br = SocketBridge(world.backend("dev-a"), udp_port=0).start()
+    py_b = SocketBridge(world.backend("dev-b")).start()
     closing += [br, py_b]
     world.start()
-    b = sb.SocketBridgeClient("127.0.0.1", py_b.tcp_port)
+    b = SocketBridgeClient("127.0.0.1", py_b.tcp_port)
     closing.append(b)
     # UDP: subscribe, get HELLO, send, receive
     u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     closing.append(u)
     u.settimeout(WAIT)
-    u.sendto(sb.encode_subscribe(), ("127.0.0.1", br.udp_port))
-    assert sb.decode_datagram(u.recv(4096)) == sb.Hello(1, 2048, "dev-a")
+    u.sendto(sw.encode_subscribe(), ("127.0.0.1", br.udp_port))
+    assert sw.decode_datagram(u.recv(4096)) == sw.Hello(1, 2048, "dev-a")
     u.sendto(b"\x00\x00\x00\x05\x02\x00", ("127.0.0.1", br.udp_port))          # length lies
-    assert isinstance(sb.decode_datagram(u.recv(4096)), sb.Error)
-    u.sendto(sb.encode_tx(2, b"by udp", 5), ("127.0.0.1", br.udp_port))
+    assert isinstance(sw.decode_datagram(u.recv(4096)), sw.Error)
+    u.sendto(sw.encode_tx(2, b"by udp", 5), ("127.0.0.1", br.udp_port))
     m = b.receive(WAIT)
     assert m is not None and (m.src, m.data) == (1, b"by udp")
-    statuses = [sb.decode_datagram(u.recv(4096)) for _ in range(2)]
+    statuses = [sw.decode_datagram(u.recv(4096)) for _ in range(2)]
     assert [(s.tag, s.event) for s in statuses] == [(5, "queued"), (5, "sent")]
     b.send(1, b"back")
     while True:                                   # statuses of frame 5 may come first
-        msg = sb.decode_datagram(u.recv(4096))
-        if isinstance(msg, sb.Rx):
+        msg = sw.decode_datagram(u.recv(4096))
+        if isinstance(msg, sw.Rx):
             break
     assert (msg.src, msg.dst, msg.data) == (2, 1, b"back")
     # TCP: a bad message is answered with ERROR and the connection lives; a bad length closes it
-    t = sb.SocketBridgeClient("127.0.0.1", br.tcp_port)
+    t = SocketBridgeClient("127.0.0.1", br.tcp_port)
     closing.append(t)
     t.send_raw(b"\x00\x00\x00\x01\x03")                               # an RX with no fields
     t.send(2, b"still fine", tag=1)
@@ -216,7 +218,7 @@ def test_message_queue_basics(qname):
 def test_dccomms_queue_client_exchanges_frames_with_a_python_client(world, closing, qname):
     cid = qname()
     mq = MqBridge(world.backend("dev-c"), cid)
-    brb = sb.SocketBridge(world.backend("dev-b")).start()
+    brb = SocketBridge(world.backend("dev-b")).start()
     closing += [brb]
     app = GliQueueClient(cid, address=3)        # the application may start first: queues are created
     closing.append(app)
@@ -224,7 +226,7 @@ def test_dccomms_queue_client_exchanges_frames_with_a_python_client(world, closi
     closing.append(mq)
     world.start()
     assert app.wait_ready(WAIT)                 # the PHY side announces READY (dccomms Start())
-    py = sb.SocketBridgeClient("127.0.0.1", brb.tcp_port)
+    py = SocketBridgeClient("127.0.0.1", brb.tcp_port)
     closing.append(py)
     # dccomms app -> Python
     app.send(2, b"from dccomms \x55\x55\r\n")
@@ -254,12 +256,12 @@ def test_dccomms_queue_client_exchanges_frames_with_a_python_client(world, closi
 def test_mq_bridge_keeps_frames_while_the_application_is_slow(world, closing, qname):
     cid = qname()
     mq = MqBridge(world.backend("dev-c"), cid)
-    brb = sb.SocketBridge(world.backend("dev-b")).start()
+    brb = SocketBridge(world.backend("dev-b")).start()
     closing += [brb]
     mq.start()
     closing.append(mq)
     world.start()
-    py = sb.SocketBridgeClient("127.0.0.1", brb.tcp_port)
+    py = SocketBridgeClient("127.0.0.1", brb.tcp_port)
     closing.append(py)
     for i in range(14):                         # more than the queue's 10 messages
         py.send(3, b"n%d" % i)
