@@ -212,3 +212,16 @@ def test_the_checker_sees_lazy_and_type_checking_imports(tmp_path):
 @pytest.mark.parametrize("room", sorted(r for r, lv in LAYERS.items() if lv <= SANS_IO_LEVEL and r != "errors"))
 def test_core_rooms_exist(room):
     assert (PKG / room / "__init__.py").is_file()
+
+
+def test_the_public_face():
+    import subprocess
+    import sys
+
+    code = ("import sys, uwsimnet_zenoh as uw; assert 'uwsimnet_zenoh.engine' not in sys.modules;"
+            "s = uw.load_scene_text('<UWSimScene><simulation><duration>1</duration></simulation></UWSimScene>');"
+            "n = uw.Network(s); n.run(); assert isinstance(s, uw.Scene) and n.now == 1.0;"
+            "from uwsimnet_zenoh.mac import Mac, MacContext, register, resolve;"
+            "assert issubclass(uw.SceneError, uw.UwsimnetError) and 'zenoh' not in sys.modules")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr

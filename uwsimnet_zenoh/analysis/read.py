@@ -15,6 +15,8 @@ from os import PathLike
 from pathlib import Path
 from typing import IO, Any
 
+from ..errors import UwsimnetError
+
 EVENTS = frozenset({"enq", "tx", "rx", "drop"})
 TX_REASONS = frozenset({"fifo", "retry", "size", "removed"})
 """Drop reasons that happen at the transmitter (used only when the trace cannot tell by itself)."""
@@ -26,7 +28,7 @@ DEFAULT_HORIZON = 60.0
 Source = str | PathLike[str] | Iterable[dict[str, Any]]
 
 
-class TraceError(ValueError):
+class TraceError(UwsimnetError, ValueError):
     """A trace that cannot be read; the message is one line, `file:line: what`."""
 
 

@@ -18,8 +18,10 @@ import os
 import select
 import sys
 
+from ..errors import UwsimnetError
 
-class MqError(OSError):
+
+class MqError(UwsimnetError, OSError):
     pass
 
 

@@ -26,6 +26,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
+from ..errors import UwsimnetError
+
 HELLO, TX, RX, STATUS, ERROR, SUBSCRIBE = 1, 2, 3, 4, 5, 6
 EVENTS = ("queued", "sent", "dropped", "acked", "failed", "delivered", "lost")
 MAX_DATA = 2048
@@ -39,7 +41,7 @@ _STATUS = struct.Struct(">BIBd")
 _LEN = struct.Struct(">I")
 
 
-class WireError(ValueError):
+class WireError(UwsimnetError, ValueError):
     pass
 
 

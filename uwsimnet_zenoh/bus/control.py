@@ -28,6 +28,7 @@ from typing import Any, Protocol
 from pydantic import ValidationError
 from uwsimnet_gli.wire import KeyNameError, Keys, check_chunk
 
+from ..errors import UwsimnetError
 from ..scene.model import Device
 
 Reply = dict[str, Any]
@@ -54,7 +55,7 @@ class Served(Protocol):
     def publish_clock(self) -> None: ...
 
 
-class ControlError(ValueError):
+class ControlError(UwsimnetError, ValueError):
     """A refused control request (the message becomes the reply's `error`)."""
 
 

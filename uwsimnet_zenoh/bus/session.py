@@ -19,13 +19,15 @@ from typing import Any
 
 import zenoh
 
+from ..errors import UwsimnetError
+
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where `uwsimnet run` listens by default, and where clients connect by default."""
 SWITCH_INTERVAL = 0.0005
 """sys.setswitchinterval for processes with a realtime engine thread (5 ms -> 0.5 ms thread switches)."""
 
 
-class BusError(RuntimeError):
+class BusError(UwsimnetError, RuntimeError):
     """A Zenoh session could not be opened (bad endpoint, port in use, no router to connect to)."""
 
 

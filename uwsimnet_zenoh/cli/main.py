@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..app.virtual import load_scene_file, print_summary, run_virtual, show_metrics
-from ..errors import UserError
+from ..errors import UserError, UwsimnetError
 from . import deploy, drivers, experiment
 
 
@@ -150,7 +150,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.fn(args)
-    except UserError as e:
+    except UwsimnetError as e:
         print(e, file=sys.stderr)
         return 2
     except KeyboardInterrupt:

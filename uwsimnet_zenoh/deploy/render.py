@@ -46,6 +46,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..errors import UwsimnetError
+
 PREFIX = "uwsimnet"
 ROLE_NAMES = ("broker", "driver", "app", "visitor")
 ROUTER_ROLE = "router"
@@ -138,7 +140,7 @@ def role_rules(role: Role) -> list[tuple[str, str, tuple[str, ...], tuple[str, .
     return out
 
 
-class InventoryError(ValueError):
+class InventoryError(UwsimnetError, ValueError):
     """The inventory is not usable; the message says where and why."""
 
 

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..errors import UwsimnetError
+
 PREAMBLE = b"\x55\x55"
 HEADER_SIZE = 6                    # preamble + dst + src + len
 FCS_SIZE = 2
@@ -54,7 +56,7 @@ def crc16_xmodem(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
     return crc
 
 
-class FramingError(ValueError):
+class FramingError(UwsimnetError, ValueError):
     """A buffer that is not one valid DataLinkFrame (strict decoding only; the stream decoder reports)."""
 
 

@@ -29,6 +29,7 @@ from uwsimnet_gli import wire
 from uwsimnet_gli.wire import Keys
 
 from ..bus.clock import WorldClock
+from ..errors import UwsimnetError
 from ..kernel.frame import BROADCAST
 from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback
 
@@ -38,7 +39,7 @@ FALLBACK_SOUND_SPEED = 1500.0
 """m/s: the propagation law assumed when a broker's `info` has no `prop` (brokers before it was added)."""
 
 
-class BackendError(RuntimeError):
+class BackendError(UwsimnetError, RuntimeError):
     """The modem does not answer (no broker, wrong world or id, handed to a real driver)."""
 
 

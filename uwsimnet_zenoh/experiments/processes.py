@@ -11,10 +11,12 @@ import sys
 import time
 from pathlib import Path
 
+from ..errors import UwsimnetError
+
 PY = sys.executable
 
 
-class ProcessError(RuntimeError):
+class ProcessError(UwsimnetError, RuntimeError):
     pass
 
 

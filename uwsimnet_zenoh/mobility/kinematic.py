@@ -17,10 +17,12 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
+from ..errors import UwsimnetError
+
 Vec = tuple[float, float, float]
 
 
-class CommandError(ValueError):
+class CommandError(UwsimnetError, ValueError):
     pass
 
 

@@ -42,6 +42,8 @@ from typing import Any, overload
 
 import numpy as np
 
+from ..errors import UwsimnetError
+
 __all__ = ["ALLOWED_NAMES", "MAX_DEPTH", "MAX_LENGTH", "Expr", "ExprError", "compile_expr"]
 
 MAX_LENGTH = 1000
@@ -71,7 +73,7 @@ _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _NUMBER_TAIL = re.compile(r"[A-Za-z0-9_.]*(?:(?<=[eE])[+-][A-Za-z0-9_.]*)?")
 
 
-class ExprError(ValueError):
+class ExprError(UwsimnetError, ValueError):
     """A rejected expression.  One line, naming the offending token and its 1-based `column`.
 
     A ValueError so that pydantic validators and CLI front ends report it like any other bad value.

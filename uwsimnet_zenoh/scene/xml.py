@@ -14,6 +14,8 @@ from typing import Any, NoReturn, TypeVar
 from lxml import etree
 from pydantic import BaseModel, ValidationError
 
+from ..errors import UwsimnetError
+
 Warn = Callable[[str], None]
 M = TypeVar("M", bound=BaseModel)
 _El = Any  # lxml.etree._Element (the private class has no public alias worth importing)
@@ -68,7 +70,7 @@ _LXML_POSITION = re.compile(r",\s*line \d+, column \d+\s*$")
 
 
 
-class SceneError(Exception):
+class SceneError(UwsimnetError):
     """A problem in a scene file; `str(e)` is one line: `source:line: message`."""
 
     def __init__(self, source: str, line: int, message: str) -> None:
