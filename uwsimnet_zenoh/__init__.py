@@ -5,7 +5,8 @@ others)::
 
     import uwsimnet_zenoh as uw
     scene = uw.load_scene("scenes/paper/phy-layer-rf.xml")
-    net = uw.Network(scene, seed=3)
+    r = uw.run(scene, seed=3, overrides={"device.*.mac": "aloha"})    # metrics per flow and channel
+    net = uw.Network(scene, seed=3)                                    # or the parts themselves
     net.tracer.add(records.append)
     net.run()
 
@@ -24,6 +25,8 @@ _FACE = {
     "SceneError": "uwsimnet_zenoh.scene.xml",
     "Scene": "uwsimnet_zenoh.scene.model",
     "Network": "uwsimnet_zenoh.engine.network",
+    "run": "uwsimnet_zenoh.app.api",
+    "RunResult": "uwsimnet_zenoh.app.api",
     "UwsimnetError": "uwsimnet_zenoh.errors",
     "UserError": "uwsimnet_zenoh.errors",
 }

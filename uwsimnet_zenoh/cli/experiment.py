@@ -10,7 +10,20 @@ import signal
 import sys
 from pathlib import Path
 
+from ..app.campaign import Campaign, execute, parse_seeds, plain_progress
 from ..errors import UserError
+
+
+def _twinbot_seeds(a: argparse.Namespace, out: Path) -> int:
+    """Table 1 / Fig. 7 with intervals: the three TWINBOT scenes as a campaign over the seeds."""
+    from ..experiments import twinbot
+
+    c = Campaign(scenes=[str(twinbot.scene_path(p)) for p in twinbot.PROTOCOLS], seeds=parse_seeds(a.seeds),
+                 out=out / "seeds", workers=a.workers)
+    report = execute(c, on_progress=plain_progress)
+    print((c.out / "summary.md").read_text())
+    print(f"figures (bars with 95 % intervals) and results in {c.out}/")
+    return 1 if report["failed"] else 0
 
 NAMES = ("phy-layer", "twinbot", "hil-formation")
 
@@ -24,6 +37,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     ap.add_argument("--duration", type=float, help="hil-formation: seconds to run (default 240)")
     ap.add_argument("--virtual", action="store_true", help="hil-formation: the virtual-time model only")
     ap.add_argument("--speed", type=float, help="hil-formation: simulated seconds per wall second (default 1)")
+    ap.add_argument("--seeds", help="phy-layer: PER per distance bin over these seeds (Wilson intervals);"
+                                    " twinbot: the three MACs over these seeds with 95 %% intervals")
+    ap.add_argument("--workers", type=int, default=1, help="twinbot --seeds: worker processes")
     ap.set_defaults(fn=run)
 
 
@@ -34,10 +50,16 @@ def run(a: argparse.Namespace) -> int:
         raise UserError("uwsimnet experiment: --duration: seconds, a number > 0")
     if a.speed is not None and (a.virtual or not a.speed > 0):
         raise UserError("uwsimnet experiment: --speed: a number > 0, for the real-time run")
+    if a.seeds is not None and a.name == "hil-formation":
+        raise UserError("uwsimnet experiment: --seeds applies to phy-layer and twinbot")
     out = Path(a.out or f"out/{a.name}")
+    if a.seeds is not None and a.name == "twinbot":
+        return _twinbot_seeds(a, out)
     kw: dict[str, float] = {} if a.duration is None else {"duration": a.duration}
     if a.speed is not None:
         kw["speed"] = a.speed
+    if a.seeds is not None:
+        kw["seeds"] = parse_seeds(a.seeds)
     if a.name == "phy-layer":
         from ..experiments import phy_layer as experiment
     elif a.name == "hil-formation" and a.virtual:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ..app.virtual import load_scene_file, print_summary, run_virtual, show_metrics
 from ..errors import UserError, UwsimnetError
-from . import deploy, drivers, experiment
+from . import deploy, drivers, experiment, sweep
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
@@ -140,7 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("-o", "--out", default="figures")
     pl.set_defaults(fn=cmd_plot)
 
-    for add_commands in (drivers.add_commands, experiment.add_commands, deploy.add_commands):
+    for add_commands in (drivers.add_commands, experiment.add_commands, sweep.add_commands, deploy.add_commands):
         add_commands(sub)
     return p
 

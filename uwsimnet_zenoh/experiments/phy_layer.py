@@ -31,13 +31,45 @@ def _records(trace: Path) -> list[dict]:
         return [json.loads(line) for line in fh][1:]
 
 
+EDGES = [0.0, 1.0, 2.5, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0]
+
+
+def _attenuation_only(recs: list[dict], t_max: float = 37.0) -> list[dict]:
+    return [r for r in recs if r.get("flow") == FLOW and r["ev"] in ("rx", "drop") and r["kind"] == "data"
+            and r.get("reason") in (None, "prop", "range") and r["t"] < t_max]
+
+
+def loss_over_seeds(per_seed: list[list[dict]]) -> list[dict]:
+    """PER by distance bin pooled over several seeds' records, with its 95 % Wilson interval, beside the
+    PER the BER expression gives; `inside` says whether the expression's value lies in the interval."""
+    from ..analysis.intervals import wilson
+
+    pooled: dict[int, list[dict]] = {}
+    for recs in per_seed:
+        for r in _attenuation_only(recs):
+            if r.get("reason") == "range":
+                continue
+            for i, (lo, hi) in enumerate(zip(EDGES, EDGES[1:], strict=False)):
+                if lo <= r["dist"] < hi:
+                    pooled.setdefault(i, []).append(r)
+    rows = []
+    for i in sorted(pooled):
+        sel = pooled[i]
+        n = len(sel)
+        lost = sum(1 for r in sel if r["ev"] == "drop")
+        expected = float(np.mean(BER.per(np.array([r["dist"] for r in sel]), SIZE)))
+        lo, hi = wilson(lost, n)
+        rows.append({"bin_m": f"{EDGES[i]:g}-{EDGES[i + 1]:g}", "seeds": len(per_seed), "frames": n,
+                     "observed_per": lost / n, "ci95": [lo, hi], "expected_per": expected,
+                     "inside": lo <= expected <= hi})
+    return rows
+
+
 def loss_vs_distance(recs: list[dict], t_max: float = 37.0) -> list[dict]:
     """Observed PER of rov0's frames before rov1 transmits (attenuation only), by distance bin."""
-    out = [r for r in recs if r.get("flow") == FLOW and r["ev"] in ("rx", "drop") and r["kind"] == "data"
-           and r.get("reason") in (None, "prop", "range") and r["t"] < t_max]
-    edges = [0.0, 1.0, 2.5, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0]
+    out = _attenuation_only(recs, t_max)
     rows = []
-    for lo, hi in zip(edges, edges[1:], strict=False):
+    for lo, hi in zip(EDGES, EDGES[1:], strict=False):
         sel = [r for r in out if lo <= r["dist"] < hi and r.get("reason") != "range"]
         if not sel:
             continue
@@ -101,8 +133,10 @@ def delays(recs: list[dict], scene: Scene) -> dict:
             "after_mean_s": float(np.mean(after)) if after else None}
 
 
-def run(out: Path, progress: bool = True) -> dict:
-    """Run both scenes into `out`; return the summary (also written as summary.json and summary.md)."""
+def run(out: Path, progress: bool = True, seeds: list[int] | None = None) -> dict:
+    """Run both scenes into `out`; return the summary (also written as summary.json and summary.md).
+    `seeds`: also run the RF scene with each of these seeds and give the PER per distance bin pooled over
+    them, with its 95 % Wilson interval."""
     from ..analysis import flow_metrics, report_json
     from ..analysis.figures import plot_trace
     from ..app.virtual import run_virtual
@@ -122,6 +156,12 @@ def run(out: Path, progress: bool = True) -> dict:
             summary[variant]["loss_vs_distance"] = loss_vs_distance(recs)
         else:
             summary[variant]["delay"] = delays(recs, scene)
+    if seeds:
+        from ..app.api import run as run_one
+
+        rf = load_scene(SCENES / "phy-layer-rf.xml")
+        summary["rf"]["loss_over_seeds"] = loss_over_seeds([run_one(rf, seed=s, trace=True).trace or []
+                                                            for s in seeds])
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     (out / "summary.md").write_text(markdown(summary))
     return summary
@@ -134,6 +174,14 @@ def markdown(s: dict) -> str:
     for r in s["rf"]["loss_vs_distance"]:
         lines.append(f"| {r['bin_m']} | {r['frames']} | {r['observed_per']:.4f} | {r['expected_per']:.4f} |"
                      f" {r['z']:+.2f} |")
+    if "loss_over_seeds" in s["rf"]:
+        rows = s["rf"]["loss_over_seeds"]
+        lines += ["", f"## Loss over {rows[0]['seeds'] if rows else 0} seeds (95 % Wilson intervals)", "",
+                  "| distance bin (m) | frames | observed PER | 95 % interval | PER from 6e-13 d^13.7 | inside |",
+                  "|---|---|---|---|---|---|"]
+        for r in rows:
+            lines.append(f"| {r['bin_m']} | {r['frames']} | {r['observed_per']:.4f} | {r['ci95'][0]:.4f} -"
+                         f" {r['ci95'][1]:.4f} | {r['expected_per']:.4f} | {'yes' if r['inside'] else 'no'} |")
     for variant in ("rf", "acoustic"):
         lines += ["", f"## Outcomes by stage ({variant})", "",
                   "| flow | stage | rx | prop | col | mult | range | fifo |", "|---|---|---|---|---|---|---|---|"]
