@@ -1,0 +1,42 @@
+"""The saturation search (app/saturation.py) finds a maximum that can be computed by hand."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import device, scene, vehicle
+
+from uwsimnet_zenoh.app.saturation import saturate
+from uwsimnet_zenoh.errors import UserError
+from uwsimnet_zenoh.scene.model import Flow
+
+
+def link(distance: float = 150.0):
+    """One half-duplex CS-ALOHA link, no loss: a frame is in service from its transmit() to its ACK."""
+    kw = dict(bitrate=1000.0, intrinsic_tx_s=0.01, mac=("aloha", {"maxRetries": "3", "backoffMax": "0.5"}))
+    return scene([vehicle("a", (0, 0, 0), device("a-m", 1, **kw)),
+                  vehicle("b", (distance, 0, 0), device("b-m", 2, **kw))],
+                 [Flow(name="f", src="a-m", dst=2, size=20, interval=1.0)], duration=200.0)
+
+
+def test_the_maximum_of_one_acknowledged_link_is_one_frame_per_exchange():
+    # intrinsic 10 ms + DATA 20 B at 1000 bit/s (160 ms) + 150 m at 1500 m/s (100 ms)
+    #   + the ACK: intrinsic 10 ms + 5 B (40 ms) + 100 ms back = 420 ms per frame
+    cycle = 0.01 + 20 * 8 / 1000 + 0.1 + 0.01 + 5 * 8 / 1000 + 0.1
+    r = saturate(link(), "f", seeds=[1, 2], tolerance=0.02, max_delay=1.0, low=0.5, steps=10)
+    assert r.rate.mean == pytest.approx(1 / cycle, rel=0.02)
+    assert r.throughput.mean == pytest.approx(20 / cycle, rel=0.02)
+    assert all(p.sustained == (p.rate <= 1 / cycle * 1.02) for p in r.probes if abs(p.rate * cycle - 1) > 0.03)
+
+
+def test_a_longer_link_sustains_less():
+    near = saturate(link(150.0), "f", seeds=[1], max_delay=1.0, low=0.5, steps=8)
+    far = saturate(link(600.0), "f", seeds=[1], max_delay=2.0, low=0.5, steps=8)
+    # 450 m farther: 2 x 0.3 s more per exchange
+    assert 1 / far.rate.mean - 1 / near.rate.mean == pytest.approx(0.6, rel=0.05)
+
+
+def test_refusals():
+    with pytest.raises(UserError, match="no such flow"):
+        saturate(link(), "nope")
+    with pytest.raises(UserError, match="not even"):
+        saturate(link(), "f", low=50.0, max_delay=0.5)
