@@ -50,7 +50,8 @@ def att(seq: int = 1) -> bytes:
 def odom(codec, frame: str, p, q=(0.0, 0.0, 0.0, 1.0), v=(0.0, 0.0, 0.0)) -> bytes:
     return codec.encode("nav_msgs/msg/Odometry", {
         "header": {"frame_id": frame}, "child_frame_id": "alpha/base_link",
-        "pose": {"pose": {"position": dict(zip("xyz", p, strict=True)), "orientation": dict(zip("xyzw", q, strict=True))}},
+        "pose": {"pose": {"position": dict(zip("xyz", p, strict=True)),
+                          "orientation": dict(zip("xyzw", q, strict=True))}},
         "twist": {"twist": {"linear": dict(zip("xyz", v, strict=True))}}})
 
 
