@@ -199,6 +199,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
     ros_opts = ros_codec = ros_note = None
     if ros2.enabled(args):
         ros_opts = ros2.options(args)
+        ros_view = ros2.check(ros_opts, hosted)
         ros_codec = ros2.codec(ros_opts.distro)
         if not zconf:
             listen, connect, ros_note = ros2.topology(listen, connect)
@@ -270,10 +271,10 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                                   " world)") from None
 
             if ros_opts is not None:
-                from ..bus.ros2 import Ros2Adapter, scene_view
+                from ..bus.ros2 import Ros2Adapter
                 try:
                     ros = Ros2Adapter(ros2.adapter_endpoint(mode, connect, listen, locators(session)), world,
-                                      ros_opts, *scene_view(hosted), ros_codec)
+                                      ros_opts, *ros_view, ros_codec)
                     ros.start()
                 except (BusError, ValueError) as e:
                     raise UserError(f"--ros2: {e}") from None

@@ -11,7 +11,7 @@ from typing import Any
 
 from ..errors import UserError
 from ..ros2 import wire as rw
-from ..ros2.bridge import Options, parse_pose_input
+from ..ros2.bridge import ModemInfo, Options, VehicleInfo, check_poses, parse_pose_input
 
 ROS_PORT = 7447
 ROS_LISTEN = [f"tcp/127.0.0.1:{ROS_PORT}", f"tcp/[::1]:{ROS_PORT}"]
@@ -58,6 +58,26 @@ def options(args: Any) -> Options:
                        clock=bool(args.ros_clock))
     except rw.Ros2WireError as e:
         raise UserError(e.detail) from None
+
+
+def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
+    """The modems and vehicles of a scene as the bridge needs them."""
+    modems, vehicles = [], []
+    for v in scene.vehicles:
+        static = v.pose_source == "scene" and len({(p.x, p.y, p.z) for p in v.trajectory}) <= 1
+        vehicles.append(VehicleInfo(v.name, v.pose_source, static))
+        modems += [ModemInfo(d.dccomms_id, d.address, v.name) for d in v.devices]
+    return modems, vehicles
+
+
+def check(opts: Options, scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
+    """The scene's view, once the options are known to fit it (UserError otherwise), before any session."""
+    modems, vehicles = scene_view(scene)
+    try:
+        check_poses(opts, vehicles)
+    except rw.Ros2WireError as e:
+        raise UserError(e.detail) from None
+    return modems, vehicles
 
 
 def codec(distro: str) -> Any:

@@ -40,16 +40,6 @@ SAMPLE_MISS_HEARTBEAT_S = 0.5
 """Heartbeat of a reliable transient-local publisher (rmw_zenoh's SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD)."""
 
 
-def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
-    """The modems and vehicles of a scene as the bridge needs them."""
-    modems, vehicles = [], []
-    for v in scene.vehicles:
-        static = v.pose_source == "scene" and len({(w.x, w.y, w.z) for w in v.trajectory}) <= 1
-        vehicles.append(VehicleInfo(v.name, v.pose_source, static))
-        modems += [ModemInfo(d.dccomms_id, d.address, v.name) for d in v.devices]
-    return modems, vehicles
-
-
 class Ros2Adapter:
     """    with Ros2Adapter(["tcp/127.0.0.1:7447"], "lab", opts, modems, vehicles) as ros: ...
     `codec` is a ros2.cdr.Codec (it needs the extra uwsimnet-zenoh[ros2])."""

@@ -189,6 +189,22 @@ def ros_name(name: str) -> str:
     return s if s and not s[0].isdigit() else "_" + s
 
 
+def check_poses(opts: Options, vehicles: Sequence[VehicleInfo]) -> None:
+    """Every --ros-pose names a vehicle of the scene that is positioned from outside, once."""
+    known = {v.name: v for v in vehicles}
+    seen = set()
+    for p in opts.poses:
+        if p.vehicle not in known:
+            raise w.Ros2WireError("option", f"--ros-pose {p.vehicle}: the scene has no vehicle {p.vehicle!r}"
+                                            f" (it has {', '.join(sorted(known)) or 'none'})")
+        if known[p.vehicle].pose_source != "zenoh":
+            raise w.Ros2WireError("option", f"--ros-pose {p.vehicle}: the scene drives this vehicle; give it"
+                                            " <poseSource>zenoh</poseSource> to position it from ROS")
+        if p.vehicle in seen:
+            raise w.Ros2WireError("option", f"--ros-pose {p.vehicle}: given twice")
+        seen.add(p.vehicle)
+
+
 # == what the bridge hands back =======================================================================
 
 @dataclass(frozen=True)
@@ -261,7 +277,7 @@ class Ros2Bridge:
         self.stats: Counter = Counter()
         self.modems = {m.dev: m for m in modems}
         self.vehicles = {v.name: v for v in vehicles}
-        self._check_poses()
+        check_poses(opts, vehicles)
         self._subs: dict[str, Endpoint] = {}
         self._pubs: dict[tuple[str, str], Endpoint] = {}
         self._pose_in: dict[str, PoseInput] = {}                 # topic -> input (odom, pose)
@@ -300,19 +316,6 @@ class Ros2Bridge:
                                 "sf_recv", m.dev))
                 self._sub(g.add("MS", node, "/", f"{node}/data_to_send", "std_msgs/msg/String", QOS_SF_SEND,
                                 "sf_send", m.dev))
-
-    def _check_poses(self) -> None:
-        seen = set()
-        for p in self.opts.poses:
-            if p.vehicle not in self.vehicles:
-                raise w.Ros2WireError("option", f"--ros-pose {p.vehicle}: the scene has no vehicle {p.vehicle!r}"
-                                                f" (it has {', '.join(sorted(self.vehicles)) or 'none'})")
-            if self.vehicles[p.vehicle].pose_source != "zenoh":
-                raise w.Ros2WireError("option", f"--ros-pose {p.vehicle}: the scene drives this vehicle; give it"
-                                                " <poseSource>zenoh</poseSource> to position it from ROS")
-            if p.vehicle in seen:
-                raise w.Ros2WireError("option", f"--ros-pose {p.vehicle}: given twice")
-            seen.add(p.vehicle)
 
     def _pub(self, ep: Endpoint) -> None:
         self._pubs[(ep.role, ep.arg)] = ep
