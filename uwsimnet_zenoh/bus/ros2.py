@@ -63,6 +63,7 @@ class Ros2Adapter:
         self._tokens: list[Any] = []
         self._pubs: dict[str, Any] = {}
         self._thread: threading.Thread | None = None
+        self._diag_thread: threading.Thread | None = None
         try:
             self.bridge = Ros2Bridge(opts, str(self.session.zid()), codec, modems, vehicles)
         except BaseException:
@@ -104,6 +105,8 @@ class Ros2Adapter:
             raise
         self._thread = threading.Thread(target=self._work, name="uwsimnet-ros2", daemon=True)
         self._thread.start()
+        self._diag_thread = threading.Thread(target=self._poll_info, name="uwsimnet-ros2-info", daemon=True)
+        self._diag_thread.start()
         log.info("ROS 2 (%s, domain %d): %d node(s), %d publisher(s), %d subscription(s)", self.opts.distro,
                  self.opts.domain, len(b.graph.nodes), len(b.publishers()), len(b.subscriptions()))
 
@@ -115,9 +118,10 @@ class Ros2Adapter:
             with contextlib.suppress(Exception):
                 t.undeclare()
         self._tokens = []
-        if self._thread is not None:
-            self._thread.join(5.0)
-            self._thread = None
+        for th in (self._thread, self._diag_thread):
+            if th is not None:
+                th.join(5.0)
+        self._thread = self._diag_thread = None
         for e in self._entities:
             with contextlib.suppress(Exception):
                 e.undeclare()
@@ -137,14 +141,11 @@ class Ros2Adapter:
 
     # -- the worker -------------------------------------------------------------------------------
     def _work(self) -> None:
-        next_diag = time.monotonic() + min(0.5, self.diagnostics_period_s)
         period = 1.0 / self.clock_rate_hz if self.opts.clock and self.clock_rate_hz > 0 else None
         next_clock = time.monotonic()
         while not self._stop.is_set():
-            now = time.monotonic()
-            deadline = min(next_diag, next_clock if period else next_diag)
             try:
-                item = self._q.get(timeout=max(0.0, deadline - now))
+                item = self._q.get(timeout=max(0.0, next_clock - time.monotonic()) if period else None)
             except queue.Empty:
                 item = ()
             if item is None:
@@ -152,19 +153,34 @@ class Ros2Adapter:
             try:
                 if item:
                     self._handle(*item)
-                now = time.monotonic()
-                if period and now >= next_clock:
-                    next_clock = max(next_clock + period, now)
+                if period and time.monotonic() >= next_clock:
+                    next_clock = max(next_clock + period, time.monotonic())
                     if self._clock is not None:
                         self._publish(self.bridge.clock(sim_time(self._clock), time.time_ns()))
-                if now >= next_diag:
-                    next_diag = now + self.diagnostics_period_s
-                    self._diagnostics()
             except Exception:  # noqa: BLE001 - the worker never dies on one bad record
-                log.exception("ROS 2 adapter: error handling %s", item[:2] if item else "a timer")
+                log.exception("ROS 2 adapter: error handling %s", item[:2] if item else "the clock")
 
-    def _handle(self, kind: str, key: str, payload: bytes, attachment: bytes | None) -> None:
+    def _poll_info(self) -> None:
+        """The modems' info records for /diagnostics, on a thread of its own (a query may take a while)."""
+        while not self._stop.wait(self.diagnostics_period_s):
+            infos = []
+            try:
+                for r in self.session.get(self.keys.info_all, timeout=max(0.1, self.diagnostics_period_s / 2)):
+                    if r.ok is not None:
+                        with contextlib.suppress(wire.CodecError):
+                            m = wire.unpack(r.ok.payload.to_bytes(), wire.MAX_REPLY_MESSAGE)
+                            if isinstance(m, dict):
+                                infos.append(m)
+            except zenoh.ZError:
+                continue
+            self._q.put(("diag", "", sorted(infos, key=lambda m: str(m.get("id"))), None))
+
+    def _handle(self, kind: str, key: str, payload: Any, attachment: bytes | None) -> None:
         b = self.bridge
+        if kind == "diag":
+            t = sim_time(self._clock) if self._clock else 0.0
+            self._publish(b.diagnostics(payload, t, time.time_ns()))
+            return
         if kind == "ros":
             for action in b.on_ros_sample(key, payload, attachment):
                 if isinstance(action, PoseUpdate):
@@ -196,20 +212,6 @@ class Ros2Adapter:
                     self._clock = m
         except wire.CodecError:
             b.stats[f"sim_{kind}_bad"] += 1
-
-    def _diagnostics(self) -> None:
-        infos = []
-        try:
-            for r in self.session.get(self.keys.info_all, timeout=0.5):
-                if r.ok is not None:
-                    with contextlib.suppress(wire.CodecError):
-                        m = wire.unpack(r.ok.payload.to_bytes(), wire.MAX_REPLY_MESSAGE)
-                        if isinstance(m, dict):
-                            infos.append(m)
-        except zenoh.ZError:
-            return
-        t = sim_time(self._clock) if self._clock else 0.0
-        self._publish(self.bridge.diagnostics(sorted(infos, key=lambda m: str(m.get("id"))), t, time.time_ns()))
 
     def _publish(self, puts: Sequence[Any]) -> None:
         for p in puts:
