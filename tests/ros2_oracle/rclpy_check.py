@@ -11,6 +11,7 @@ positions rclpy ignores when reading (fastcdr leaves alignment padding uninitial
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
 import sys
@@ -102,7 +103,8 @@ def main() -> None:
         diff = [i for i in range(min(len(mine), len(theirs))) if mine[i] != theirs[i]]
         out_cases.append({"rclpy": theirs.hex(), "same_message": same, "padding": padding,
                           "equal_but_padding": len(mine) == len(theirs) and diff == padding})
-    hashes = rosidl_hashes(req.get("msg_dirs", {}))
+    with contextlib.redirect_stdout(sys.stderr):          # rosidl_adapter prints what it reads and writes
+        hashes = rosidl_hashes(req.get("msg_dirs", {}))
     for c in req["cases"]:
         if c["type"] not in hashes:
             h = shipped_hash(c["type"])
