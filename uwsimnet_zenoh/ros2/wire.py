@@ -24,6 +24,8 @@ import struct
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+from ..errors import UwsimnetError
+
 # == distros ==========================================================================================
 
 DISTROS = ("humble", "jazzy", "kilted", "lyrical", "rolling")
@@ -32,7 +34,7 @@ TYPE_HASH_NOT_SUPPORTED = "TypeHashNotSupported"
 """What Humble's rmw_zenoh puts where later distros put the RIHS01 hash."""
 
 
-class Ros2WireError(ValueError):
+class Ros2WireError(UwsimnetError, ValueError):
     """Input this module cannot accept; `reason` is a short token (counted by the adapter)."""
 
     def __init__(self, reason: str, detail: str) -> None:
