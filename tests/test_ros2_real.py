@@ -109,7 +109,7 @@ def verdict() -> tuple[list[dict], dict, dict]:
         for _ in range(PER_TYPE):
             fields = make()
             cases.append({"type": t, "fields": fields, "ours": codec.encode(t, fields).hex()})
-    msg_dirs = {pkg: str(ROOT / "uwsimnet_zenoh" / "ros2" / "msg" / pkg) for pkg in SHIPPED}
+    msg_dirs = {pkg: str(ROOT / "uwsimnet_zenoh" / "ros2" / "interfaces" / pkg / "msg") for pkg in SHIPPED}
     env = dict(os.environ, PYTHONPATH=str(next((INSTALL / "lib").glob("python3*/site-packages"))),
                LD_LIBRARY_PATH=str(INSTALL / "lib"), AMENT_PREFIX_PATH=f"{INSTALL}:{ORACLE}")
     r = subprocess.run([str(PY), str(ROOT / "tests" / "ros2_oracle" / "rclpy_check.py")], input=json.dumps(

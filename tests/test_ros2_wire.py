@@ -159,9 +159,9 @@ def _defs() -> dict[str, w.MsgDef]:
         "rosgraph_msgs/msg/Clock": "builtin_interfaces/Time clock\n",
         "diagnostic_msgs/msg/KeyValue": "string key\nstring value\n",
     }
-    root = Path(w.__file__).parent / "msg"
-    for f in sorted(root.glob("*/*.msg")):
-        texts[f"{f.parent.name}/msg/{f.stem}"] = f.read_text()
+    root = Path(w.__file__).parent / "interfaces"
+    for f in sorted(root.glob("*/msg/*.msg")):
+        texts[f"{f.parent.parent.name}/msg/{f.stem}"] = f.read_text()
     return {k: w.parse_msg(k, v) for k, v in texts.items()}
 
 

@@ -29,7 +29,7 @@ build() {   # build PKG DEPENDENCY...   (PKG's msg/*.msg already in $SRC/PKG/msg
   local d="$SRC/$pkg" msgs="" deps="" xml=""
   for f in "$d"/msg/*.msg; do msgs="$msgs \"msg/$(basename "$f")\""; done
   for dep in "$@"; do deps="$deps $dep"; xml="$xml<depend>$dep</depend>"; done
-  cat > "$d/CMakeLists.txt" <<CMAKE
+  [ -f "$d/CMakeLists.txt" ] || cat > "$d/CMakeLists.txt" <<CMAKE
 cmake_minimum_required(VERSION 3.8)
 project($pkg)
 find_package(ament_cmake REQUIRED)
@@ -38,7 +38,7 @@ $(for dep in "$@"; do echo "find_package($dep REQUIRED)"; done)
 rosidl_generate_interfaces(\${PROJECT_NAME} $msgs DEPENDENCIES $deps)
 ament_package()
 CMAKE
-  cat > "$d/package.xml" <<XML
+  [ -f "$d/package.xml" ] || cat > "$d/package.xml" <<XML
 <?xml version="1.0"?>
 <package format="3"><name>$pkg</name><version>0.0.0</version><description>built for tests</description>
 <maintainer email="none@example.com">none</maintainer><license>Apache-2.0</license>
@@ -53,9 +53,8 @@ XML
 }
 rm -rf "$SRC" && mkdir -p "$SRC/tf2_msgs/msg"
 printf 'geometry_msgs/TransformStamped[] transforms\n' > "$SRC/tf2_msgs/msg/TFMessage.msg"
-for p in uwsimnet_msgs dmac2_interfaces; do
-  mkdir -p "$SRC/$p/msg" && cp "$ROOT"/uwsimnet_zenoh/ros2/msg/$p/*.msg "$SRC/$p/msg/"
-done
+# the project's packages as shipped (uwsimnet_msgs with its own package.xml and CMakeLists.txt)
+cp -r "$ROOT"/uwsimnet_zenoh/ros2/interfaces/uwsimnet_msgs "$ROOT"/uwsimnet_zenoh/ros2/interfaces/dmac2_interfaces "$SRC/"
 build tf2_msgs geometry_msgs
 build uwsimnet_msgs std_msgs
 build dmac2_interfaces std_msgs diagnostic_msgs

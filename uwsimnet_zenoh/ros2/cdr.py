@@ -3,7 +3,7 @@
 rosbags is pure Python (no ROS install): its serializer gives the bytes rclpy gives (tests compare with
 golden CDR made by rclpy from the PyPI ros-jazzy wheels). Type hashes are computed by wire.rihs01 from the
 definitions (rosbags' own hash_rihs01 differs from rosidl for `.msg` `char`). The packages this project
-ships (msg/uwsimnet_msgs, msg/dmac2_interfaces) are registered from their .msg files.
+ships (interfaces/uwsimnet_msgs, interfaces/dmac2_interfaces) are registered from their .msg files.
 """
 
 from __future__ import annotations
@@ -24,10 +24,13 @@ except ImportError as e:  # pragma: no cover - depends on the environment
     raise ImportError("ROS 2 support needs rosbags: pip install 'uwsimnet-zenoh[ros2]'") from e
 
 SHIPPED = {"uwsimnet_msgs": ("Frame", "Transmit", "Status"), "dmac2_interfaces": ("DMACPayload",)}
-"""Message packages defined by this project's .msg files (ros2/msg/<package>/<Name>.msg)."""
+"""Message packages defined by this project's .msg files (ros2/interfaces/<package>/msg/<Name>.msg)."""
 
-_STORES = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY, "kilted": Stores.ROS2_KILTED,
-           "lyrical": Stores.ROS2_LYRICAL, "rolling": Stores.ROS2_LYRICAL}
+# rosbags' type store per distro (an older rosbags without a store falls back to Jazzy's definitions: the
+# messages used here have the same definitions, hence hashes, from Humble to Lyrical)
+_STORES = {d: getattr(Stores, f"ROS2_{s.upper()}", Stores.ROS2_JAZZY)
+           for d, s in (("humble", "humble"), ("jazzy", "jazzy"), ("kilted", "kilted"), ("lyrical", "lyrical"),
+                        ("rolling", "lyrical"))}
 
 _NP = {"float64": np.float64, "float32": np.float32, "uint8": np.uint8, "int8": np.int8, "int16": np.int16,
        "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32, "int64": np.int64, "uint64": np.uint64,
@@ -133,6 +136,6 @@ def _base(t: str) -> str:
 
 def shipped_msg_texts() -> dict[str, str]:
     """`{'uwsimnet_msgs/msg/Frame': <.msg text>, ...}` for every package this project ships."""
-    root = resources.files(__package__) / "msg"
-    return {f"{pkg}/msg/{n}": (root / pkg / f"{n}.msg").read_text(encoding="utf-8")
+    root = resources.files(__package__) / "interfaces"
+    return {f"{pkg}/msg/{n}": (root / pkg / "msg" / f"{n}.msg").read_text(encoding="utf-8")
             for pkg, names in SHIPPED.items() for n in names}
