@@ -38,8 +38,9 @@ ros2-peers:
 
 ## Real ROS 2 Jazzy code (rclpy, rosidl) for tests/test_ros2_real.py: PyPI wheels + local message builds
 ros2-oracle:
-	@test -f .venv-ros2-jazzy/ros2-install/lib/python3.11/site-packages/uwsimnet_msgs/__init__.py \
-	  || nice -n 10 bash tests/ros2_oracle/setup.sh .venv-ros2-jazzy $(PY)
+	@s=$$(cat uwsimnet_zenoh/ros2/interfaces/*/msg/*.msg uwsimnet_zenoh/ros2/interfaces/*/*.* tests/ros2_oracle/setup.sh \
+	      | sha256sum | cut -c1-16); test "$$(cat .venv-ros2-jazzy/.stamp 2>/dev/null)" = "$$s" \
+	  || { nice -n 10 bash tests/ros2_oracle/setup.sh .venv-ros2-jazzy $(PY) && echo $$s > .venv-ros2-jazzy/.stamp; }
 
 clean:
 	rm -rf $(VENV) out .venv-zenoh-* .venv-ros2-jazzy
