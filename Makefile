@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: paper test lint bench clean
+.PHONY: paper test lint bench clean ros2-peers ros2-oracle
 
 $(STAMP): pyproject.toml gli_clients/python/pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) on PATH (or make PY=python3)"; exit 2; }
@@ -29,5 +29,18 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python bench/bench_engine.py
 
+## ROS 2 peers on the Zenoh versions rmw_zenoh ships (tests/test_ros2_live.py uses them when present)
+ROS2_PEER_ZENOH := 1.4.0 1.6.2
+ros2-peers:
+	@for v in $(ROS2_PEER_ZENOH); do \
+	  test -x .venv-zenoh-$$v/bin/python || { $(PY) -m venv .venv-zenoh-$$v && \
+	    .venv-zenoh-$$v/bin/pip install -q eclipse-zenoh==$$v; } || exit 1; done
+
+## Real ROS 2 Jazzy code (rclpy, rosidl) for tests/test_ros2_real.py: PyPI wheels + local message builds
+ros2-oracle:
+	@s=$$(cat uwsimnet_zenoh/ros2/interfaces/*/msg/*.msg uwsimnet_zenoh/ros2/interfaces/*/*.* tests/ros2_oracle/setup.sh \
+	      | sha256sum | cut -c1-16); test "$$(cat .venv-ros2-jazzy/.stamp 2>/dev/null)" = "$$s" \
+	  || { nice -n 10 bash tests/ros2_oracle/setup.sh .venv-ros2-jazzy $(PY) && echo $$s > .venv-ros2-jazzy/.stamp; }
+
 clean:
-	rm -rf $(VENV) out
+	rm -rf $(VENV) out .venv-zenoh-* .venv-ros2-jazzy

@@ -21,7 +21,7 @@ LAYERS: dict[str, int] = {
     "phy": 3, "mac": 3,
     "scene": 4,
     "traffic": 5,
-    "engine": 6, "analysis": 6,
+    "engine": 6, "analysis": 6, "ros2": 6,   # ros2: rmw_zenoh's wire and the ROS<->sim translation, sans-IO
     # ---- the sans-IO line (uwsimnet_gli.wire sits here, outside this package) ----
     "bus": 8, "deploy": 8,
     "drivers": 9,

@@ -28,6 +28,7 @@ from ..bus.router import StopOnSignal
 from ..bus.session import DEFAULT_ENDPOINT, BusError, locators, make_config, open_raw, tune_threads
 from ..errors import UserError
 from ..scene.model import Scene
+from . import ros2
 
 log = logging.getLogger("uwsimnet.bus.runtime")
 
@@ -195,6 +196,14 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
         mode, connect, listen = _file_endpoints(zconf)
         if mode == "client" and not connect:
             raise UserError(f"{zconf}: a client configuration without connect/endpoints; give --connect")
+    ros_opts = ros_codec = ros_note = None
+    if ros2.enabled(args):
+        ros_opts = ros2.options(args)
+        ros_view = ros2.check(ros_opts, hosted)
+        ros_codec = ros2.codec(ros_opts.distro)
+        if not zconf:
+            listen, connect, ros_note = ros2.topology(listen, connect)
+            mode = "client" if connect else "router"
     if not connect and not listen:
         listen = [DEFAULT_ENDPOINT]
 
@@ -228,6 +237,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                               f" running there? use --connect {listen[0]} to join it, or --listen"
                               " another endpoint") from None
         broker = None
+        ros = None
         fh = None
         jsonl = None
         try:
@@ -260,6 +270,19 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 raise UserError(f"{scene.source}: {e} (names become Zenoh keys; --world NAME sets the"
                                   " world)") from None
 
+            if ros_opts is not None:
+                from ..bus.ros2 import Ros2Adapter
+                try:
+                    ros = Ros2Adapter(ros2.adapter_endpoint(mode, connect, listen, locators(session)), world,
+                                      ros_opts, *ros_view, ros_codec)
+                    ros.start()
+                except (BusError, ValueError) as e:
+                    raise UserError(f"--ros2: {e}") from None
+                if ros_note:
+                    print(f"uwsimnet: {ros_note}", flush=True)
+                b = ros.bridge
+                print(f"uwsimnet: ROS 2 {ros_opts.distro}, domain {ros_opts.domain}: {len(b.graph.nodes)} node(s),"
+                      f" topics {', '.join(sorted({e.topic for e in b.graph.endpoints}))}", flush=True)
             if connect:
                 print(f"uwsimnet: connected to {', '.join(connect)}", flush=True)
             else:
@@ -284,6 +307,9 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
             if not clock.join(5.0):
                 log.error("the engine thread did not stop within 5 s")
             summary = {"t": net.sched.now, **clock.stats()}
+            if ros is not None:
+                summary["ros2"] = dict(ros.bridge.problems.counts)
+                ros.close()
             if broker is not None:
                 summary["bus"] = dict(broker.counters)
                 broker.close()
@@ -312,6 +338,8 @@ def _summary(trace: str, s: dict[str, Any], net: Any) -> None:
     except TraceError as e:
         console.print(f"(no report: {e})")
     bad = {k: v for k, v in (s.get("bus") or {}).items() if k not in ("tx_messages", "poses")}
+    if s.get("ros2"):
+        bad["ros2"] = s["ros2"]
     console.print(f"{net.scene.name}: {s['t']:.3f} s realtime, {s['events']} events (late mean"
                   f" {s['late_mean'] * 1e6:.0f} us, max {s['late_max'] * 1e3:.2f} ms), {s['items']} messages,"
                   f" {s['errors']} errors" + (f"; refused/ignored: {bad}" if bad else ""))

@@ -14,6 +14,7 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
+from ..app import ros2
 from ..app.virtual import load_scene_file, print_summary, run_virtual, show_metrics
 from ..errors import UserError, UwsimnetError
 from . import deploy, drivers, experiment, sweep
@@ -29,7 +30,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 def default_clock(scene, args: argparse.Namespace) -> str:
     """The scene's <clock> if it names one, else realtime when something outside drives the run
-    (a vehicle with poseSource zenoh, flows run by external apps), else virtual."""
+    (a vehicle with poseSource zenoh, flows run by external apps, ROS 2 nodes), else virtual; --ros2 always
+    runs realtime."""
+    if getattr(args, "ros2", False):
+        return "realtime"
     if "clock" in scene.simulation.model_fields_set:
         return scene.simulation.clock
     if getattr(args, "external_flows", None) or any(v.pose_source == "zenoh" for v in scene.vehicles):
@@ -48,6 +52,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.world:
         scene = scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"world": args.world})})
     clock = args.clock or default_clock(scene, args)
+    if getattr(args, "ros2", False) and clock != "realtime":
+        raise UserError("--ros2 runs on the realtime clock (ROS 2 nodes live in wall time): drop --clock virtual")
     if clock == "realtime":
         from ..app.realtime import run_realtime  # noqa: PLC0415 - zenoh only when needed
 
@@ -117,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--channels", help="comma-separated channel ids this broker serves (realtime)")
     r.add_argument("--external-flows", metavar="NAMES",
                    help="flows (comma-separated, or 'all') run by external apps, not by the simulator (realtime)")
+    ros2.add_arguments(r)
     r.set_defaults(fn=cmd_run)
 
     ro = sub.add_parser("router", help="a standalone Zenoh router for this machine (other machines connect)")

@@ -1,0 +1,126 @@
+"""`uwsimnet run --ros2`: the options, the topology choice (stand in for rmw_zenohd, or join it) and the
+adapter's life inside a realtime run (docs/ros2.md)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import socket
+from typing import Any
+
+from ..errors import UserError
+from ..ros2 import wire as rw
+from ..ros2.bridge import ModemInfo, Options, VehicleInfo, check_poses, parse_pose_input
+
+ROS_PORT = 7447
+ROS_LISTEN = [f"tcp/127.0.0.1:{ROS_PORT}", f"tcp/[::1]:{ROS_PORT}"]
+"""Where ROS 2 nodes look for their router: rmw_zenoh sessions dial tcp/localhost:7447, and localhost is
+127.0.0.1 or ::1 depending on the resolver, so a router standing in for rmw_zenohd listens on both."""
+ROS_CONNECT = [f"tcp/localhost:{ROS_PORT}"]
+
+
+def add_arguments(r: Any) -> None:
+    g = r.add_argument_group("ROS 2 (realtime; needs the extra uwsimnet-zenoh[ros2])")
+    g.add_argument("--ros2", action="store_true",
+                   help="be a ROS 2 participant on rmw_zenoh's wire: modem nodes and topics, poses from ROS")
+    g.add_argument("--ros-domain", type=int, metavar="N", help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else 0)")
+    g.add_argument("--ros-distro", choices=rw.DISTROS,
+                   help=f"the ROS 2 distro of the other nodes (default: $ROS_DISTRO, else {rw.DEFAULT_DISTRO})")
+    g.add_argument("--ros-profile", action="append", choices=("native", "dmac2", "stonefish"),
+                   help="modem topics: native (uwsimnet_msgs, default), dmac2 (send/recv DMACPayload),"
+                        " stonefish (data_to_send/received_data); repeatable")
+    g.add_argument("--ros-pose", action="append", metavar="VEHICLE=odom:TOPIC|pose:TOPIC|tf:FRAME[@enu|@ned]",
+                   help="position a <poseSource>zenoh</poseSource> vehicle from a ROS topic; repeatable")
+    g.add_argument("--ros-frame", choices=("enu", "ned"), default="enu",
+                   help="the convention of the scene's coordinates (default enu, as ROS)")
+    g.add_argument("--ros-namespace", default="/uwsimnet", help="namespace of the modem nodes (native profile)")
+    g.add_argument("--ros-clock", action="store_true", help="publish the simulation time on /clock")
+
+
+def enabled(args: Any) -> bool:
+    return bool(getattr(args, "ros2", False))
+
+
+def options(args: Any) -> Options:
+    domain = args.ros_domain
+    if domain is None:
+        env = os.environ.get("ROS_DOMAIN_ID", "").strip()
+        domain = int(env) if env.isdigit() else 0
+    distro = args.ros_distro or os.environ.get("ROS_DISTRO", "").strip().lower() or rw.DEFAULT_DISTRO
+    if distro not in rw.DISTROS:
+        raise UserError(f"ROS_DISTRO={distro}: uwsimnet speaks {', '.join(rw.DISTROS)} (give --ros-distro)")
+    try:
+        return Options(domain=domain, distro=distro, namespace=args.ros_namespace,
+                       profiles=tuple(dict.fromkeys(args.ros_profile or ["native"])),
+                       poses=tuple(parse_pose_input(p) for p in args.ros_pose or ()),
+                       scene_frame=args.ros_frame, world_frame="world" if args.ros_frame == "enu" else "world_ned",
+                       clock=bool(args.ros_clock))
+    except rw.Ros2WireError as e:
+        raise UserError(e.detail) from None
+
+
+def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
+    """The modems and vehicles of a scene as the bridge needs them."""
+    modems, vehicles = [], []
+    for v in scene.vehicles:
+        static = v.pose_source == "scene" and len({(p.x, p.y, p.z) for p in v.trajectory}) <= 1
+        vehicles.append(VehicleInfo(v.name, v.pose_source, static))
+        modems += [ModemInfo(d.dccomms_id, d.address, v.name) for d in v.devices]
+    return modems, vehicles
+
+
+def check(opts: Options, scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
+    """The scene's view, once the options are known to fit it (UserError otherwise), before any session."""
+    modems, vehicles = scene_view(scene)
+    try:
+        check_poses(opts, vehicles)
+    except rw.Ros2WireError as e:
+        raise UserError(e.detail) from None
+    return modems, vehicles
+
+
+def codec(distro: str) -> Any:
+    try:
+        from ..ros2.cdr import Codec
+    except ImportError:
+        raise UserError("--ros2 needs rosbags: pip install 'uwsimnet-zenoh[ros2]'") from None
+    return Codec(distro)
+
+
+def router_running(host: str = "127.0.0.1", port: int = ROS_PORT, timeout: float = 0.3) -> bool:
+    """Something (rmw_zenohd, another router) accepts TCP connections on the ROS router port."""
+    with contextlib.suppress(OSError), socket.create_connection((host, port), timeout=timeout):
+        return True
+    return False
+
+
+def topology(listen: list[str], connect: list[str]) -> tuple[list[str], list[str], str | None]:
+    """(listen, connect, message) for a --ros2 run given no endpoints: join the host's router if one runs on
+    7447 (as a client, the DESIGN's rule), else be it, on 127.0.0.1 and ::1."""
+    if listen or connect:
+        return listen, connect, None
+    if router_running():
+        return [], list(ROS_CONNECT), ("a Zenoh router already listens on 7447 (rmw_zenohd?): joining it as a"
+                                       " client")
+    return list(ROS_LISTEN), [], None
+
+
+def adapter_endpoint(mode: str, connect: list[str], listen: list[str], locs: list[str]) -> list[str]:
+    """Where the adapter's client session connects: the run's router (one of its loopback locators), or the
+    router the run itself joined."""
+    if mode == "client":
+        return list(connect)
+    for ep in list(locs) + list(listen):
+        m = re.fullmatch(r"(tcp|udp)/(.+):(\d+)", ep.split("#")[0])
+        if not m or m.group(3) == "0":
+            continue
+        host = {"0.0.0.0": "127.0.0.1", "[::]": "[::1]"}.get(m.group(2), m.group(2))
+        if host in ("127.0.0.1", "localhost", "[::1]"):
+            return [f"tcp/{host}:{m.group(3)}"]
+    for ep in list(locs) + list(listen):
+        m = re.fullmatch(r"(tcp|udp)/(.+):(\d+)", ep.split("#")[0])
+        if m and m.group(3) != "0":
+            host = {"0.0.0.0": "127.0.0.1", "[::]": "[::1]"}.get(m.group(2), m.group(2))
+            return [f"{m.group(1)}/{host}:{m.group(3)}"]
+    raise UserError(f"--ros2: cannot tell where the run's router listens ({', '.join(listen) or 'nowhere'})")
