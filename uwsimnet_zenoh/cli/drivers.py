@@ -72,6 +72,12 @@ def add_commands(sub: Any) -> None:
     bs.set_defaults(fn=cmd_bridge)
     bm = bsub.add_parser("mq", help="dccomms POSIX message queues /<id>_tx_dlnk_phy, /<id>_rx_dlnk_phy")
     bm.add_argument("--dccomms-id", help="queue name prefix (default: --id)")
+    bm.add_argument("--framing", metavar="BUILDER",
+                    help="the applications' packet builder, e.g. VariableLength2BPacketBuilder (default: the"
+                         " scene's txPacketBuilder of the modem, else DataLinkFrameBuilderCRC16)")
+    bm.add_argument("--rx-framing", metavar="BUILDER",
+                    help="the builder of the frames written to the application (default: the scene's"
+                         " rxPacketBuilder, else --framing)")
     common(bm)
     bm.set_defaults(fn=cmd_bridge)
 
@@ -233,9 +239,18 @@ def cmd_bridge(args: argparse.Namespace) -> int:
 
         if not posix_mq.available():
             raise UserError("POSIX message queues are not available on this system")
-        br = MqBridge(be, args.dccomms_id or args.id)
+        from ..phy.framing import builder
+
+        for name in (args.framing, args.rx_framing):
+            if name:
+                try:
+                    builder(name)
+                except ValueError as e:
+                    raise UserError(f"--framing: {e}") from None
+        br = MqBridge(be, args.dccomms_id or args.id, framing=args.framing, rx_framing=args.rx_framing)
         br.start()
-        return br, f"queues {br.tx_name} {br.rx_name}"
+        return br, f"queues {br.tx_name} {br.rx_name} framing {br.framing.name}" + (
+            f" (rx {br.rx_framing.name})" if br.rx_framing.name != br.framing.name else "")
 
     return _serve(args, f"bridge {args.bridge}", start)
 

@@ -17,7 +17,9 @@ truncated one is still found.  It never raises on input.
 
 The GLI messages are what dccomms' `CommsDeviceService` exchanges over its POSIX message queues
 (`/<id>_tx_dlnk_phy`, `/<id>_rx_dlnk_phy`): one type byte (FRAME 0, REQ_STATE 1, CMD_STATE 2) followed by
-the whole frame (preamble and FCS included) or by one state byte (BUSY 0, READY 1).
+the whole packet buffer (frame, padding to the builder's maximum, 12-byte virtual area: see
+`phy.framing.frame_message`) or by one state byte (BUSY 0, READY 1).  Every other dccomms framing, and the
+CRC32 variant, is in `phy.framing`.
 """
 
 from __future__ import annotations
@@ -251,13 +253,15 @@ class FrameDecoder:
 
 
 # -- GLI messages (dccomms CommsDeviceService over POSIX message queues) -------------------------
+# The FRAME message carries the whole packet buffer (frame, padding, virtual area): phy.framing.frame_message
+# and parse_frame_message build and read it for every framing; here only the type byte and the states.
 MSG_FRAME = 0
 MSG_REQ_STATE = 1
 MSG_CMD_STATE = 2
 PHY_BUSY = 0
 PHY_READY = 1
-GLI_MAX_FRAME = 7000
-"""dccomms' default `maxframesize`; a queue message is at most this + 1 type byte."""
+GLI_MAX_FRAME = 8191
+"""dccomms' default `maxframesize` (CommsDeviceService.h:30); a queue message is at most this + 1 type byte."""
 GLI_MAXMSG = 10
 
 
@@ -269,10 +273,6 @@ def tx_queue_name(dccomms_id: str) -> str:
 def rx_queue_name(dccomms_id: str) -> str:
     """The queue the application reads frames from (the PHY side writes it)."""
     return f"/{dccomms_id}_rx_dlnk_phy"
-
-
-def gli_frame(frame: bytes) -> bytes:
-    return bytes((MSG_FRAME,)) + frame
 
 
 def gli_req_state() -> bytes:

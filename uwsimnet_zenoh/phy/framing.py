@@ -389,3 +389,12 @@ def parse_frame_message(framing: Framing, msg: bytes | bytearray | memoryview) -
     va = VirtualArea.unpack(body[framing.max_frame:framing.buffer_size]) \
         if len(body) >= framing.buffer_size else None
     return FrameMessage(pkt, va)
+
+
+MAX_ADDRESS = 0xFFFF
+"""The largest modem address a frame can be sent to in this simulator (uwsimnet_gli.wire.MAX_ADDRESS)."""
+
+
+def state_message(state: int) -> bytes:
+    """CMD_STATE: the PHY tells the application it is BUSY (0) or READY (1)."""
+    return bytes((MSG_CMD_STATE, state))
