@@ -30,6 +30,7 @@ broker publishes in the modem's info; DataLinkFrame CRC16 when there is none, th
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import time
 from collections import Counter, deque
@@ -39,7 +40,7 @@ from typing import Any
 from ..drivers._aio import LoopThread
 from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend, detach
 from ..phy import framing as fr
-from .posix_mq import MessageQueue
+from .posix_mq import MessageQueue, MqError
 
 log = logging.getLogger("uwsimnet.bridges.mq")
 
@@ -47,6 +48,15 @@ QUEUE_MODE = 0o777
 """dccomms creates its queues with permission 0777 under umask 0 (CommsDeviceService.cpp:64,111)."""
 WARN_FIRST = 10
 """Refusals of one reason logged one by one; past that, every 100th (with the running count)."""
+
+
+def _msgqueue_limit() -> str:
+    try:
+        import resource  # noqa: PLC0415 - only for the message
+
+        return str(resource.getrlimit(resource.RLIMIT_MSGQUEUE)[0])
+    except (ImportError, AttributeError, OSError, ValueError):
+        return "?"
 
 
 def tx_queue_name(dccomms_id: str) -> str:
@@ -100,10 +110,22 @@ class MqBridge:
 
     # -- lifecycle ----------------------------------------------------------------------------------
     def start(self) -> None:
-        self._txq = MessageQueue.open(self.tx_name, read=True, write=False, maxmsg=self.maxmsg,
-                                      msgsize=self.msgsize, mode=self.mode, nonblock=True)
-        self._rxq = MessageQueue.open(self.rx_name, read=False, write=True, maxmsg=self.maxmsg,
-                                      msgsize=self.msgsize, mode=self.mode, nonblock=True)
+        try:
+            self._txq = MessageQueue.open(self.tx_name, read=True, write=False, maxmsg=self.maxmsg,
+                                          msgsize=self.msgsize, mode=self.mode, nonblock=True)
+            self._rxq = MessageQueue.open(self.rx_name, read=False, write=True, maxmsg=self.maxmsg,
+                                          msgsize=self.msgsize, mode=self.mode, nonblock=True)
+        except MqError as e:
+            if self._txq is not None:
+                self._txq.close()
+                self._txq = None
+            if e.errno == errno.EMFILE:   # Linux: also the per-user RLIMIT_MSGQUEUE byte budget
+                raise MqError(e.errno, f"{e.strerror}: the user's message-queue budget (ulimit -q,"
+                                       f" {_msgqueue_limit()} bytes) is used up or too many files are open;"
+                                       f" each dccomms queue of {self.maxmsg} x {self.msgsize} bytes takes about"
+                                       f" {self.maxmsg * (self.msgsize + 64)} bytes: raise ulimit -q or remove"
+                                       " stale queues") from None
+            raise
         for q, need in ((self._txq, self.framing.message_size), (self._rxq, self.rx_framing.message_size)):
             if q.msgsize < need:       # someone created the queue smaller: frames will not fit
                 log.warning("%s: queue messages hold %d bytes, a FRAME message of %s is %d", q.name, q.msgsize,

@@ -248,7 +248,10 @@ def cmd_bridge(args: argparse.Namespace) -> int:
                 except ValueError as e:
                     raise UserError(f"--framing: {e}") from None
         br = MqBridge(be, args.dccomms_id or args.id, framing=args.framing, rx_framing=args.rx_framing)
-        br.start()
+        try:
+            br.start()
+        except posix_mq.MqError as e:
+            raise UserError(f"bridge mq: {e}") from None
         return br, f"queues {br.tx_name} {br.rx_name} framing {br.framing.name}" + (
             f" (rx {br.rx_framing.name})" if br.rx_framing.name != br.framing.name else "")
 
