@@ -123,3 +123,30 @@ def test_unknown_mac_name_is_refused_at_load_with_its_line(name):
     with pytest.raises(SceneError) as e:
         load_scene_text(hello_world(dev, _device("bluerov1-dev", 2)), "t.xml", on_warning=lambda _w: None)
     assert str(e.value).startswith("t.xml:4: macProtocol/name: ") and name in str(e.value)
+
+
+def test_queued_frames_leave_100_us_apart_without_the_intrinsic_delay_again():
+    """netsim_oceans19's radio link: 1900 bps, 85.282906 ms intrinsic delay; 45-byte payloads in
+    VariableLength2BPacket are 50 bytes on air: queued frames leave every 50*8/1900 s + 100 us = 210.6 ms
+    (dccomms_ros TransmitEnqueuedPacket), not 295.8 ms."""
+    radio = "<intrinsicDelay>85.282906</intrinsicDelay>"
+    dev0 = _device("bluerov0-dev", 1).replace("<intrinsicDelay>1</intrinsicDelay>", radio) \
+        .replace("<bitrate>1800</bitrate>", "<bitrate>1900</bitrate>")
+    text = hello_world(dev0, _device("bluerov1-dev", 2), FLOW.format(size=45, iv="0.01", x="<stop>0.05</stop>"))
+    tx = [r["t"] for r in _run(text, 5) if r["ev"] == "tx"]
+    assert len(tx) == 5
+    assert tx[0] == pytest.approx(0.085282906, abs=1e-9)          # the first frame found the modem idle
+    gaps = [b - a for a, b in zip(tx, tx[1:], strict=False)]
+    assert gaps == pytest.approx([50 * 8 / 1900 + 100e-6] * 4, abs=1e-9)
+    assert gaps[0] == pytest.approx(0.2106, abs=1e-4)
+
+
+def test_addressee_only_delivery_is_an_explicit_option():
+    only = "<macProtocol><name>none</name><delivery>addressee</delivery></macProtocol>"
+    third = ("<vehicle><name>bluerov_2</name><position><x>0</x><y>10</y><z>4</z></position>"
+             + _device("bluerov2-dev", 3) + "</vehicle>")
+    for mac, expect in (("", {"bluerov1-dev", "bluerov2-dev"}), (only, {"bluerov1-dev"})):
+        text = hello_world(_device("bluerov0-dev", 1, mac), _device("bluerov1-dev", 2, mac),
+                           FLOW.format(size=8, iv=1, x="<stop>0.5</stop>"),
+                           third.replace("</CustomCommsDevice>", f"{mac}</CustomCommsDevice>"))
+        assert {r["dev"] for r in _run(text, 3) if r["ev"] == "rx"} == expect

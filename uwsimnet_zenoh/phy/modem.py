@@ -146,7 +146,8 @@ class Modem:
             elif frame.size > self.cfg.max_frame_bytes or (
                     self.framing is not None and self.framing.check_payload(payload) is not None):
                 refuse = "size"
-            elif dst != BROADCAST and not self.tx_channel.has_address(dst):
+            elif dst != BROADCAST and not getattr(self.mac, "implicit_broadcast", False) \
+                    and not self.tx_channel.has_address(dst):
                 refuse = "noaddr"           # nobody on the channel has that address: say so now
         if refuse is not None:
             self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
@@ -178,15 +179,20 @@ class Modem:
         self.fifo_bytes -= frame.size
         return frame
 
-    def transmit(self, frame: Frame) -> None:
+    def transmit(self, frame: Frame, delay: float | None = None) -> None:
+        """Hand `frame` to the PHY: first bit on air after the intrinsic delay (and jitter), or after
+        `delay` s instead (a queued frame in dccomms_ros: 100 us after the previous one, no intrinsic delay)."""
         if self.phy_busy:
             raise RuntimeError(f"{self.id}: transmit while the transmitter is busy ({frame})")
         self.phy_busy = True
         frame.tries += 1
         cfg = self.cfg
-        d = cfg.intrinsic_tx_s
-        if cfg.jitter_tx_s > 0:
-            d = max(0.0, self._jitter.gauss(d, cfg.jitter_tx_s))
+        if delay is not None:
+            d = delay
+        else:
+            d = cfg.intrinsic_tx_s
+            if cfg.jitter_tx_s > 0:
+                d = max(0.0, self._jitter.gauss(d, cfg.jitter_tx_s))
         if d > 0:
             self.sched.after(d, self._on_air, frame)
         else:
@@ -227,7 +233,9 @@ class Modem:
         now = self.sched.now
         self.counters["rx"] += 1
         self.rx_dist = dist
-        self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist)
+        # a frame for another address handed up anyway (no MAC: the original's implicit broadcast)
+        implicit = frame.dst != BROADCAST and frame.dst != self.address
+        self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist, implicit=implicit)
         for cb in self.on_receive:
             cb(self, frame, now)
 
@@ -271,8 +279,9 @@ class Modem:
         self._rx_dist = dist
         self.mac.on_rx(frame)
 
-    def phy_overheard(self, frame: Frame) -> None:
+    def phy_overheard(self, frame: Frame, dist: float = 0.0) -> None:
         """Called by the channel: `frame`, addressed to another modem, arrived intact (if `overhears`)."""
+        self._rx_dist = dist
         self.mac.on_overhear(frame)
 
     def phy_failed(self, frame: Frame, reason: str) -> None:
