@@ -150,3 +150,36 @@ def test_addressee_only_delivery_is_an_explicit_option():
                            FLOW.format(size=8, iv=1, x="<stop>0.5</stop>"),
                            third.replace("</CustomCommsDevice>", f"{mac}</CustomCommsDevice>"))
         assert {r["dev"] for r in _run(text, 3) if r["ev"] == "rx"} == expect
+
+
+def test_warnings_are_summarised_one_line_per_kind(tmp_path, capsys):
+    from uwsimnet_zenoh.cli.main import main
+
+    veh = ("<vehicle><name>v{i}</name><file>x.urdf</file><position><x>{i}</x><y>0</y><z>0</z></position>"
+           "{dev}</vehicle>")
+    vehicles = "".join(veh.format(i=i, dev=_device(f"d{i}", i + 1)) for i in range(4))
+    path = tmp_path / "s.xml"
+    path.write_text("<UWSimScene>\n<CustomCommsChannel><id>0</id></CustomCommsChannel>\n"
+                    "<camera><fov>60</fov></camera>\n" + vehicles.replace("><", ">\n<") + "\n</UWSimScene>\n")
+    assert main(["validate", str(path)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    file_lines = [x for x in err if "<file> in <vehicle>" in x]
+    assert len(file_lines) == 1 and file_lines[0].endswith("[x4, -v lists all]")
+    assert file_lines[0].startswith(f"{path}:")           # file:first line
+    relative = [x for x in err if "<relativeTo>" in x]
+    assert len(relative) == 1 and "[x4" in relative[0]
+    assert len([x for x in err if "<camera>" in x]) == 1 and "[x" not in [x for x in err if "<camera>" in x][0]
+    assert main(["validate", "-v", str(path)]) == 0
+    every = capsys.readouterr().err.splitlines()
+    assert len([x for x in every if "<file> in <vehicle>" in x]) == 4 and len(every) > len(err)
+
+
+def test_validate_refuses_an_unknown_mac_with_file_and_line(tmp_path, capsys):
+    from uwsimnet_zenoh.cli.main import main
+
+    path = tmp_path / "s.xml"
+    path.write_text(hello_world(_device("bluerov0-dev", 1, "<macProtocol>\n<name>tdma</name></macProtocol>"),
+                                _device("bluerov1-dev", 2)))
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"{path}:4: macProtocol/name: unknown MAC protocol 'tdma'")
