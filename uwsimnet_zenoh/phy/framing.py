@@ -33,6 +33,8 @@ import re
 import struct
 from dataclasses import dataclass
 
+from ..errors import UwsimnetError
+
 BROADCAST = 255
 VIRTUAL_AREA = 12
 MSG_FRAME, MSG_REQ_STATE, MSG_CMD_STATE = 0, 1, 2
@@ -86,7 +88,7 @@ def crc32(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
 
 
 # -- packets -----------------------------------------------------------------------------------------
-class FramingError(ValueError):
+class FramingError(UwsimnetError, ValueError):
     """A buffer dccomms would not accept as a packet of this framing; str(e) is the reason."""
 
 
