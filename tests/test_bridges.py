@@ -272,6 +272,9 @@ def test_refusals_are_warnings_with_the_reason(world, closing, qname, caplog):
     mq.start()
     closing.append(mq)
     world.start()
+    for q in (mq._txq, mq._rxq):                # the bridge created them: as dccomms does
+        assert (q.getattr()["maxmsg"], q.getattr()["msgsize"]) == (10, 8192)
+        assert os.fstat(q.fileno()).st_mode & 0o777 == 0o777
     app = GliQueueClient(cid, address=3, framing="VariableLength2BPacketBuilder")
     closing.append(app)
     bad = bytearray(app.message(2, b"hello"))
