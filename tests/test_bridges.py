@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import itertools
+import json
 import os
 import shutil
 import socket
+import struct
 import subprocess
 import time
 from pathlib import Path
@@ -20,6 +22,7 @@ from uwsimnet_zenoh.bridges.socket_bridge import SocketBridge
 from uwsimnet_zenoh.bridges.socket_client import SocketBridgeClient
 from uwsimnet_zenoh.drivers import dccomms_framing as dl
 from uwsimnet_zenoh.drivers.sim_backend import SimWorld
+from uwsimnet_zenoh.phy import framing as fr
 
 WAIT = 15.0  # an upper bound only: until() returns as soon as the condition holds
 C_SOURCE = Path(__file__).resolve().parent.parent / "gli_clients" / "c" / "gli_socket_client.c"
@@ -214,42 +217,117 @@ def test_message_queue_basics(qname):
         assert posix_mq.MessageQueue.unlink(name) and not posix_mq.MessageQueue.unlink(name)
 
 
+VECTORS = json.loads((Path(__file__).parent / "data" / "dccomms_vectors.json").read_text())
+
+
+def _vector(framing: str, payload_name: str) -> dict:
+    return next(v for v in VECTORS["frames"] if v["framing"] == framing and v["payload_name"] == payload_name)
+
+
 @pytestmark_mq
 def test_dccomms_queue_client_exchanges_frames_with_a_python_client(world, closing, qname):
     cid = qname()
-    mq = MqBridge(world.backend("dev-c"), cid)
+    mq = MqBridge(world.backend("dev-c"), cid)          # no framing in the scene: DataLinkFrame CRC16
     brb = SocketBridge(world.backend("dev-b")).start()
     closing += [brb]
     app = GliQueueClient(cid, address=3)        # the application may start first: queues are created
     closing.append(app)
+    assert app.tx.getattr()["msgsize"] == 8192 and app.tx.getattr()["maxmsg"] == 10
     mq.start()
     closing.append(mq)
     world.start()
     assert app.wait_ready(WAIT)                 # the PHY side announces READY (dccomms Start())
     py = SocketBridgeClient("127.0.0.1", brb.tcp_port)
     closing.append(py)
-    # dccomms app -> Python
+    # dccomms app -> Python: a 2069-byte FRAME message (frame, padding, virtual area)
+    assert len(app.message(2, b"x")) == 2069
     app.send(2, b"from dccomms \x55\x55\r\n")
     m = py.receive(WAIT)
     assert m is not None and (m.src, m.dst, m.data) == (3, 2, b"from dccomms \x55\x55\r\n")
-    # Python -> dccomms app: a DataLinkFrame in a FRAME message
+    # Python -> dccomms app: the whole packet buffer, the virtual area filled (src = the sender)
     py.send(3, b"to dccomms", tag=4)
     f = app.receive(WAIT)
-    assert f == dl.DataLinkFrame(3, 2, b"to dccomms")
+    assert f is not None and (f.src, f.dst, f.payload) == (2, 3, b"to dccomms")
     assert app.phy_state == dl.PHY_READY       # every frame the app wrote was answered READY
-    # a corrupted frame and a garbage message are counted and skipped; REQ_STATE is answered
-    bad = bytearray(dl.encode_frame(2, 3, b"broken"))
-    bad[-2] ^= 0xFF
+    # a corrupted frame and a garbage message are refused (WARNING, counted); REQ_STATE is answered
+    bad = bytearray(app.message(2, b"broken"))
+    bad[1 + 6 + 6] ^= 0xFF                      # the FCS
     app.send_raw(bytes(bad))
     app.tx.send(b"\x09junk")
     app.tx.send(dl.gli_req_state())
     app.send(2, b"after the junk")
     m = py.receive(WAIT)
     assert m is not None and m.data == b"after the junk"
-    assert until(lambda: mq.counters["bad_frames"] == 1 and mq.counters["bad_messages"] == 1)
+    assert until(lambda: mq.info()["refused"] == {"frame": 1, "type": 1})
+    assert "unknown message type 9" in mq.info()["last_refusal"]
     # (the app's first REQ_STATE, sent before the bridge started, was cleared with the stale input)
     assert mq.counters["req_state"] == 1 and mq.counters["cleared"] == 1 and mq.counters["tx"] == 2
     assert py.receive(0.3) is None              # nothing else got through
+
+
+@pytestmark_mq
+def test_refusals_are_warnings_with_the_reason(world, closing, qname, caplog):
+    cid = qname()
+    mq = MqBridge(world.backend("dev-c"), cid, framing="VariableLength2BPacketBuilder")
+    mq.start()
+    closing.append(mq)
+    world.start()
+    for q in (mq._txq, mq._rxq):                # the bridge created them: as dccomms does
+        assert (q.getattr()["maxmsg"], q.getattr()["msgsize"]) == (10, 8192)
+        assert os.fstat(q.fileno()).st_mode & 0o777 == 0o777
+    app = GliQueueClient(cid, address=3, framing="VariableLength2BPacketBuilder")
+    closing.append(app)
+    bad = bytearray(app.message(2, b"hello"))
+    bad[4] ^= 0x01                              # a payload bit
+    with caplog.at_level("WARNING", logger="uwsimnet.bridges.mq"):
+        app.send_raw(bytes(bad))
+        assert until(lambda: mq.counters["refused"] == 1)
+    assert any(r.levelname == "WARNING" and "bad CRC16" in r.getMessage() for r in caplog.records)
+    info = mq.info()
+    assert info["refused"] == {"frame": 1} and "bad CRC16" in info["last_refusal"]
+    assert info["framing"] == "VariableLength2BPacketBuilder" and info["message_size"] == 2066
+
+
+@pytestmark_mq
+@pytest.mark.parametrize("framing, builder", [("vl2b", "VariableLength2BPacketBuilder"),
+                                              ("dlf16", "DataLinkFrameBuilderCRC16")])
+def test_messages_in_the_real_layout_go_through_both_ways(world, closing, qname, framing, builder):
+    """A client that writes the bytes the real dccomms app wrote (tests/data, captured from its queue)
+    and checks what the bridge writes back against the real library's layout."""
+    cid = qname()
+    mq = MqBridge(world.backend("dev-c"), cid, framing=builder)
+    brb = SocketBridge(world.backend("dev-b")).start()
+    closing += [brb]
+    mq.start()
+    closing.append(mq)
+    world.start()
+    tx = posix_mq.MessageQueue.open(dl.tx_queue_name(cid), read=False, write=True)
+    rx = posix_mq.MessageQueue.open(dl.rx_queue_name(cid), read=True, write=False)
+    closing += [tx, rx]
+    py = SocketBridgeClient("127.0.0.1", brb.tcp_port)
+    closing.append(py)
+    v = _vector(framing, "hello")
+    # the captured message: padding = the real library's uninitialised memory; virtual area seq 7 src 1 dst 2
+    tx.send(bytes.fromhex(v["message_hex_as_captured"]))
+    m = py.receive(WAIT)
+    assert m is not None and (m.src, m.dst, m.data) == (3, 2, b"Hello World!")
+    py.send(3, b"Hello World!")
+    while True:
+        msg = rx.receive(WAIT)
+        assert msg is not None
+        if msg[0] == dl.MSG_FRAME:
+            break
+    assert len(msg) == v["message_size"]
+    frame_len = v["packet_size"]
+    if framing == "dlf16":     # header dst 3 src 2 (the real frame had dst 2 src 1): same length and payload
+        real = bytes.fromhex(v["frame_hex"])
+        assert msg[1:3] == real[:2] and msg[3:5] == b"\x03\x02" and msg[5:1 + frame_len - 2] == real[4:-2]
+        assert fr.DataLinkFrame("crc16").parse(msg[1:]).payload == b"Hello World!"      # its FCS checks
+    else:
+        assert msg[1:1 + frame_len] == bytes.fromhex(v["frame_hex"])
+    assert msg[1 + frame_len:-12] == bytes(len(msg) - 13 - frame_len)
+    seq, src, dst = struct.unpack("<III", msg[-12:])
+    assert (src, dst) == (2, 3) and seq == 0       # the sender's address and sequence number
 
 
 @pytestmark_mq
@@ -269,10 +347,10 @@ def test_mq_bridge_keeps_frames_while_the_application_is_slow(world, closing, qn
     assert mq.info()["backlog"] > 0             # the queue is full: the rest waits in the bridge
     app = GliQueueClient(cid, address=3)
     closing.append(app)
-    # a dccomms app drains its rx queue when it starts (ClearInputQueue): what was queued is lost,
-    # what the bridge held back arrives
+    # a dccomms app cannot clear 8192-byte queues (ClearInputQueue reads with a 4000-byte buffer): it
+    # gets everything, in order
     got = []
     while (f := app.receive(1.0)) is not None:
         got.append(f.payload)
-    assert got and got == [b"n%d" % i for i in range(14 - len(got), 14)]
+    assert got == [b"n%d" % i for i in range(14)]
     assert mq.info()["backlog"] == 0

@@ -111,7 +111,8 @@ def test_a_removed_modem_takes_no_more_flow_frames_and_refuses_apps():
 
 
 def test_unicast_to_an_address_nobody_has_is_dropped_at_once():
-    a, b = device("a", 1), device("b", 2)
+    only = ("none", {"delivery": "addressee"})      # without it (the original's default) the frame goes on air
+    a, b = device("a", 1, mac=only), device("b", 2, mac=only)
     rec = Recorded(scene([vehicle("va", (0, 0, 0), a), vehicle("vb", (10, 0, 0), b)]))
     rec.net.sched.at(1.0, lambda: rec.net.modems["a"].send(9, 10))
     rec.run()

@@ -47,8 +47,11 @@ with zenoh.open(conf) as s:
 
 
 def slow_device(dev: str, mac: int) -> str:
-    """Slow (1 kbit/s) so that b-m's FIFO holds frames when the driver comes."""
-    return device_xml(dev, mac).replace("<bitrate>10000</bitrate>", "<bitrate>1000</bitrate>")
+    """Slow (1 kbit/s) so that b-m's FIFO holds frames when the driver comes; addressee-only delivery, so
+    that a frame for a modem that left the channel is refused (`noaddr`) instead of going on air for
+    whoever is in range (the original's implicit broadcast without a MAC)."""
+    only = "<macProtocol><name>none</name><delivery>addressee</delivery></macProtocol>"
+    return device_xml(dev, mac, extra=only).replace("<bitrate>10000</bitrate>", "<bitrate>1000</bitrate>")
 
 
 class Driver:

@@ -131,7 +131,8 @@ def test_half_duplex_receiver_loses_what_arrives_while_it_transmits():
 
 
 def test_a_half_duplex_modem_waits_for_the_end_of_what_it_hears():
-    """NOMAC's implicit carrier sense: r picks its frame at 2.1 but hears a until 2.2."""
+    """NOMAC's implicit carrier sense: r picks its frame at 2.1 but hears a until 2.2; the frame that waited
+    leaves 100 us after the reception ends, without the intrinsic delay (dccomms_ros TransmitEnqueuedPacket)."""
     a = device("a", 1)
     r = device("r", 3, intrinsic_tx_s=0.001)
     rec = Recorded(scene([vehicle("va", (-1500, 0, 0), a), vehicle("vr", (0, 0, 0), r)]))
@@ -139,7 +140,7 @@ def test_a_half_duplex_modem_waits_for_the_end_of_what_it_hears():
     at(rec, 2.1, "r", 1, 25)
     rec.run()
     assert not rec.ev("drop")
-    assert [(t["dev"], t["t"]) for t in rec.ev("tx")] == [("a", 1.0), ("r", pytest.approx(2.201))]
+    assert [(t["dev"], t["t"]) for t in rec.ev("tx")] == [("a", 1.0), ("r", pytest.approx(2.2001))]
 
 
 def test_full_duplex_receiver_keeps_receiving_while_it_transmits():
@@ -154,14 +155,30 @@ def test_full_duplex_receiver_keeps_receiving_while_it_transmits():
     assert not rec.ev("drop") and sorted(r["dev"] for r in rec.ev("rx")) == ["a", "r"]
 
 
-def test_frames_for_another_address_are_not_delivered():
-    a, b, c = device("a", 1), device("b", 2), device("c", 3)
+def test_frames_for_another_address_are_not_delivered_with_addressee_delivery():
+    only = ("none", {"delivery": "addressee"})
+    a, b, c = device("a", 1, mac=only), device("b", 2, mac=only), device("c", 3, mac=only)
     rec = Recorded(scene([vehicle("va", (0, 0, 0), a), vehicle("vb", (10, 0, 0), b),
                           vehicle("vc", (0, 10, 0), c)]))
     at(rec, 0.0, "a", 2, 10)
     at(rec, 1.0, "a", 255, 10)
     rec.run()
     assert [(r["dev"], r["dst"]) for r in rec.ev("rx")] == [("b", 2), ("b", 255), ("c", 255)]
+
+
+def test_without_a_mac_every_modem_in_range_gets_the_frame():
+    """The original's implicit broadcast: no destination filtering without a MAC, the application filters;
+    the other modems' rx is traced `implicit` (and is not a delivery of the flow)."""
+    a, b, c, d = device("a", 1, max_distance=2000), device("b", 2), device("c", 3), device("d", 4)
+    rec = Recorded(scene([vehicle("va", (0, 0, 0), a), vehicle("vb", (10, 0, 0), b),
+                          vehicle("vc", (0, 10, 0), c), vehicle("vd", (0, 0, 3000), d)]))   # d: out of a's range
+    at(rec, 0.0, "a", 2, 10)
+    at(rec, 1.0, "a", 77, 10)          # an address nobody has: still on air (no "noaddr" without a MAC)
+    rec.run()
+    got = [(r["dev"], r["dst"], r.get("implicit", False)) for r in rec.ev("rx")]
+    assert sorted(got[:2]) == [("b", 2, False), ("c", 2, True)]
+    assert sorted(got[2:]) == [("b", 77, True), ("c", 77, True)]
+    assert not rec.ev("drop")
 
 
 def test_fifo_counts_bytes_behind_the_frame_on_air_and_drops_tail():
@@ -175,7 +192,7 @@ def test_fifo_counts_bytes_behind_the_frame_on_air_and_drops_tail():
     (drop,) = rec.ev("drop")
     assert (drop["reason"], drop["seq"], drop["dev"]) == ("fifo", 3, "a")
     tx = rec.ev("tx")
-    assert [t["t"] for t in tx] == pytest.approx([1.0, 1.2, 1.4])
+    assert [t["t"] for t in tx] == pytest.approx([1.0, 1.2001, 1.4002])      # 100 us apart when queued
     assert [t["fifo"] for t in tx] == [0, 25, 0]
 
 
@@ -197,7 +214,8 @@ def test_intrinsic_delay_keeps_the_transmitter_busy():
     at(rec, 0.0, "a", 2, 25)
     at(rec, 0.0, "a", 2, 25)
     rec.run()
-    assert [t["t"] for t in rec.ev("tx")] == pytest.approx([0.1, 0.4])
+    # the second frame waited: it leaves 100 us after the first one's last bit, without the intrinsic delay
+    assert [t["t"] for t in rec.ev("tx")] == pytest.approx([0.1, 0.3001])
 
 
 def test_jitter_is_a_truncated_gaussian_added_to_the_intrinsic_delay():
@@ -260,7 +278,7 @@ def test_every_frame_ends_in_exactly_one_outcome_per_intended_receiver():
     listeners = {f"n{i}" for i in range(6)}
     outcomes: dict[tuple[int, int], list[str]] = {}
     for r in rec.records:
-        if r["ev"] in ("rx", "drop") and r["kind"] == "data":
+        if r["ev"] in ("rx", "drop") and r["kind"] == "data" and not r.get("implicit"):
             outcomes.setdefault((r["src"], r["seq"]), []).append(r["dev"])
     reasons = {r.get("reason") for r in rec.ev("drop")}
     assert {"col", "fifo", "range"} <= reasons and ("prop" in reasons or "mult" in reasons)

@@ -136,8 +136,6 @@ def test_legacy_scene_loads_with_warnings_and_converted_units(tmp_path: Path) ->
         " (ROS TF frame: the modem sits at the vehicle position)",
         f"{src}:40: warning: <tfId> in <CustomCommsDevice> ignored"
         " (ROS TF frame: the modem sits at the vehicle position)",
-        f"{src}:50: warning: <txPacketBuilder> in <CustomCommsDevice> ignored"
-        " (framing is not simulated: use <headerBytes> for on-air overhead)",
         f"{src}:57: warning: <file> in <vehicle> ignored (UWSim 3D scene element)",
         f"{src}:59: warning: no rateErrorModel: assuming no propagation loss (the original assumed 0.01*m)",
         f"{src}:70: warning: <rosInterfaces> ignored (ROS interfaces: applications reach modems through Zenoh"
@@ -168,7 +166,10 @@ def test_legacy_scene_loads_with_warnings_and_converted_units(tmp_path: Path) ->
     assert (d0.max_distance, d0.min_distance) == (100.0, 0.0)
     assert d0.error == ErrorModel(line=46, unit="bit", expr="6e-13*m^13.7")
     assert d0.mac == MacSpec()
+    assert (d0.tx_framing, d0.rx_framing) == ("VariableLength2BPacketBuilder", None)
+    assert d0.max_frame_bytes == 2053                 # the framing's largest frame
     (d1,) = v1.devices
+    assert d1.tx_framing is None and d1.max_frame_bytes == 2048
     assert d1.error == ErrorModel()                   # no loss, not the original's 0.01*m
     assert d1.mac == MacSpec(line=67, name="sfama", params={"maxBackoffSlots": "10"})
     assert d1.max_distance == 99_999_999.0

@@ -298,6 +298,8 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
             t_end = t
         tx_dev, at_tx = devs.transmitter(rec)
         size = rec["size"]
+        if ev == "rx" and rec.get("implicit"):
+            continue                # handed to a modem that was not the addressee (no MAC): not a delivery
         if rec.get("kind", "data") != "data":
             if ev == "tx":          # control frames only count as bytes on air of the flow they serve
                 a = acc_for(_ctrl_flow(rec, tx_dev, devs, frames), tx_dev, None)

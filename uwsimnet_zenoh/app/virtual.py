@@ -22,14 +22,35 @@ def _warn(msg: str) -> None:
     print(msg, file=sys.stderr)
 
 
-def load_scene_file(path: str):
-    """A scene from a file, or UserError with the one-line `file:line: message`."""
+def summarise_warnings(warnings: list[str]) -> list[str]:
+    """One line per kind of warning (same message, any line): the first one, with how many there were.
+
+    `file:12: warning: <file> in <vehicle> ignored (UWSim 3D scene element) [x5, -v lists all]`"""
+    kinds: dict[str, list[str]] = {}
+    for w in warnings:
+        head, sep, msg = w.partition(": warning: ")
+        kinds.setdefault(msg if sep else w, []).append(w)
+    out = []
+    for same in kinds.values():
+        out.append(same[0] if len(same) == 1 else f"{same[0]} [x{len(same)}, -v lists all]")
+    return out
+
+
+def load_scene_file(path: str, verbose: bool = False):
+    """A scene from a file, or UserError with the one-line `file:line: message`.  Warnings go to stderr,
+    one line per kind (`verbose`: every one)."""
     if not Path(path).is_file():
         raise UserError(f"{path}: no such scene file")
+    warnings: list[str] = []
     try:
-        return load_scene(path, on_warning=_warn)
+        scene = load_scene(path, on_warning=warnings.append)
     except SceneError as e:
+        for w in warnings if verbose else summarise_warnings(warnings):
+            _warn(w)
         raise UserError(str(e)) from None
+    for w in warnings if verbose else summarise_warnings(warnings):
+        _warn(w)
+    return scene
 
 
 def run_virtual(scene, *, seed: int | None, duration: float | None, trace_path: Path,

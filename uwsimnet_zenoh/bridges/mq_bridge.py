@@ -6,49 +6,102 @@ talks to the physical layer through two POSIX message queues::
     /<id>_tx_dlnk_phy   application -> PHY   (the bridge reads it)
     /<id>_rx_dlnk_phy   PHY -> application   (the bridge writes it)
 
-Each message is one type byte then a body (dccomms_framing: FRAME 0 + a whole DataLinkFrame,
-REQ_STATE 1, CMD_STATE 2 + BUSY 0 / READY 1); queues hold 10 messages of up to 7001 bytes.  The
-bridge plays dccomms' PHY side (what UWSim-NET's simulator or `dccomms_s100_bridge` did): it clears
-what is waiting when it starts and announces READY; every FRAME it reads goes to the modem (the
-frame's dst, its payload; the source address is the modem's) and is answered READY, since the
-simulated modem has its own FIFO; a REQ_STATE is answered with the state; every frame the modem
-receives is written as a FRAME with a DataLinkFrame around it.  Frames that fail their CRC or cannot
-be parsed are counted and skipped (and still answered READY so the application does not hang).
+As dccomms 0710d53 defines it (docs/bridges.md has the file:line of each fact): queues of 10 messages of up
+to 8192 bytes, mode 0777, created by whichever side opens first; a message is one type byte then a body:
+FRAME 0 + the whole packet buffer (the frame, padding to the packet builder's largest frame, then the
+12-byte virtual area seq/src/dst, u32 little-endian), REQ_STATE 1, CMD_STATE 2 + BUSY 0 / READY 1.
 
-`GliQueueClient` is the application side, for tests and Python programs that want the dccomms wire.
+The bridge plays dccomms' PHY side (what UWSim-NET's simulator, dccomms_ros' ROSCommsDevice, did).  It
+reads and writes frames in the modem's framing (the scene's txPacketBuilder/rxPacketBuilder, which the
+broker publishes in the modem's info; DataLinkFrame CRC16 when there is none, the original's default):
+
+* app -> modem: a FRAME is parsed as dccomms does (`phy.framing`), checked like IsOk(), and handed to the
+  modem for its destination (DataLinkFrame: the header's dst; other framings: the virtual area's).  It
+  is answered READY, since the simulated modem has its own FIFO.  A message the bridge refuses (unknown
+  type, a frame that fails its CRC or cannot be parsed, a payload the modem cannot carry) is logged as a
+  WARNING with the reason and counted (`info()["refused"]`); it is still answered READY so that the
+  application, which marked the PHY busy when it wrote, does not wait forever.
+* modem -> app: every frame is written as a FRAME message in the receiving framing, with the virtual
+  area filled as the original simulator did: seq, src = the sender's address, dst.
+
+`GliQueueClient` is the application side (what `CommsDeviceService` does), for tests and Python programs.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import time
 from collections import Counter, deque
+from dataclasses import dataclass
 from typing import Any
 
-from ..drivers import dccomms_framing as dl
 from ..drivers._aio import LoopThread
 from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend, detach
-from .posix_mq import MessageQueue
+from ..phy import framing as fr
+from .posix_mq import MessageQueue, MqError
 
 log = logging.getLogger("uwsimnet.bridges.mq")
 
+QUEUE_MODE = 0o777
+"""dccomms creates its queues with permission 0777 under umask 0 (CommsDeviceService.cpp:64,111)."""
+WARN_FIRST = 10
+"""Refusals of one reason logged one by one; past that, every 100th (with the running count)."""
+
+
+def _msgqueue_limit() -> str:
+    try:
+        import resource  # noqa: PLC0415 - only for the message
+
+        return str(resource.getrlimit(resource.RLIMIT_MSGQUEUE)[0])
+    except (ImportError, AttributeError, OSError, ValueError):
+        return "?"
+
+
+def tx_queue_name(dccomms_id: str) -> str:
+    """The queue the application writes frames to (the PHY side reads it)."""
+    return f"/{dccomms_id}_tx_dlnk_phy"
+
+
+def rx_queue_name(dccomms_id: str) -> str:
+    """The queue the application reads frames from (the PHY side writes it)."""
+    return f"/{dccomms_id}_rx_dlnk_phy"
+
+
+def _framing(value: fr.Framing | str | None, info: dict[str, Any], key: str) -> fr.Framing:
+    if isinstance(value, fr.Framing):
+        return value
+    name = value or info.get(key) or info.get("tx_framing")
+    return fr.builder(name) if isinstance(name, str) and name else fr.DEFAULT
+
 
 class MqBridge:
-    def __init__(self, backend: ModemBackend, dccomms_id: str | None = None, *, backlog: int = 1000,
-                 msgsize: int = dl.GLI_MAX_FRAME + 1, maxmsg: int = dl.GLI_MAXMSG, unlink_on_close: bool = False,
-                 clear_on_start: bool = True) -> None:
+    def __init__(self, backend: ModemBackend, dccomms_id: str | None = None, *,
+                 framing: fr.Framing | str | None = None, rx_framing: fr.Framing | str | None = None,
+                 backlog: int = 1000, msgsize: int = fr.GLI_MSGSIZE, maxmsg: int = fr.GLI_MAXMSG,
+                 mode: int = QUEUE_MODE, unlink_on_close: bool = False, clear_on_start: bool = True) -> None:
         self.backend = backend
         self.dccomms_id = dccomms_id or backend.id
-        self.tx_name = dl.tx_queue_name(self.dccomms_id)
-        self.rx_name = dl.rx_queue_name(self.dccomms_id)
+        self.tx_name = tx_queue_name(self.dccomms_id)
+        self.rx_name = rx_queue_name(self.dccomms_id)
+        info = backend.info() if hasattr(backend, "info") else {}
+        info = info if isinstance(info, dict) else {}
+        self.framing = _framing(framing, info, "tx_framing")
+        """What the application writes (the device's txPacketBuilder)."""
+        self.rx_framing = _framing(rx_framing if rx_framing is not None else framing, info, "rx_framing")
+        """What the application reads (the device's rxPacketBuilder, else its txPacketBuilder)."""
         self.backlog = backlog
         self.msgsize = msgsize
         self.maxmsg = maxmsg
+        self.mode = mode
         self.unlink_on_close = unlink_on_close
         self.clear_on_start = clear_on_start
         self.counters: Counter[str] = Counter()
-        self.state = dl.PHY_READY
+        self.refused: Counter[str] = Counter()
+        self.last_refusal: str | None = None
+        self.state = fr.PHY_READY
+        self._seq = 0
         self._io = LoopThread(f"uwsimnet-mq-bridge-{self.dccomms_id}")
         self._txq: MessageQueue | None = None
         self._rxq: MessageQueue | None = None
@@ -57,10 +110,26 @@ class MqBridge:
 
     # -- lifecycle ----------------------------------------------------------------------------------
     def start(self) -> None:
-        self._txq = MessageQueue.open(self.tx_name, read=True, write=False, maxmsg=self.maxmsg,
-                                      msgsize=self.msgsize, nonblock=True)
-        self._rxq = MessageQueue.open(self.rx_name, read=False, write=True, maxmsg=self.maxmsg,
-                                      msgsize=self.msgsize, nonblock=True)
+        try:
+            self._txq = MessageQueue.open(self.tx_name, read=True, write=False, maxmsg=self.maxmsg,
+                                          msgsize=self.msgsize, mode=self.mode, nonblock=True)
+            self._rxq = MessageQueue.open(self.rx_name, read=False, write=True, maxmsg=self.maxmsg,
+                                          msgsize=self.msgsize, mode=self.mode, nonblock=True)
+        except MqError as e:
+            if self._txq is not None:
+                self._txq.close()
+                self._txq = None
+            if e.errno == errno.EMFILE:   # Linux: also the per-user RLIMIT_MSGQUEUE byte budget
+                raise MqError(e.errno, f"{e.strerror}: the user's message-queue budget (ulimit -q,"
+                                       f" {_msgqueue_limit()} bytes) is used up or too many files are open;"
+                                       f" each dccomms queue of {self.maxmsg} x {self.msgsize} bytes takes about"
+                                       f" {self.maxmsg * (self.msgsize + 64)} bytes: raise ulimit -q or remove"
+                                       " stale queues") from None
+            raise
+        for q, need in ((self._txq, self.framing.message_size), (self._rxq, self.rx_framing.message_size)):
+            if q.msgsize < need:       # someone created the queue smaller: frames will not fit
+                log.warning("%s: queue messages hold %d bytes, a FRAME message of %s is %d", q.name, q.msgsize,
+                            self.framing.name if q is self._txq else self.rx_framing.name, need)
         if self.clear_on_start:
             self.counters["cleared"] += self._txq.drain()
         self._io.start()
@@ -70,7 +139,7 @@ class MqBridge:
 
     def _start(self) -> None:
         self._io.loop.add_reader(self._txq.fileno(), self._readable)
-        self._queue_out(dl.gli_cmd_state(self.state))
+        self._queue_out(fr.state_message(self.state))
 
     def close(self) -> None:
         detach(self.backend, self._bk_frame, self._bk_status)
@@ -101,7 +170,9 @@ class MqBridge:
 
     def info(self) -> dict[str, Any]:
         return {"id": self.dccomms_id, "tx_queue": self.tx_name, "rx_queue": self.rx_name,
-                "backlog": len(self._out), "counters": dict(self.counters)}
+                "framing": self.framing.name, "rx_framing": self.rx_framing.name,
+                "message_size": self.framing.message_size, "backlog": len(self._out),
+                "counters": dict(self.counters), "refused": dict(self.refused), "last_refusal": self.last_refusal}
 
     # -- application -> modem (loop thread) ----------------------------------------------------------
     def _readable(self) -> None:
@@ -117,38 +188,64 @@ class MqBridge:
                 return
             self._message(msg)
 
+    def _refuse(self, kind: str, reason: str) -> None:
+        self.counters["refused"] += 1
+        self.refused[kind] += 1
+        n = self.refused[kind]
+        self.last_refusal = reason
+        if n <= WARN_FIRST or n % 100 == 0:
+            more = f" ({n} so far)" if n > WARN_FIRST else ""
+            log.warning("%s: message refused: %s%s", self.tx_name, reason, more)
+
     def _message(self, msg: bytes) -> None:
-        try:
-            m = dl.parse_gli(msg)
-        except dl.FramingError as e:
-            self.counters["bad_messages"] += 1
-            log.info("%s: %s", self.tx_name, e)
+        if not msg:
+            self._refuse("empty", "empty message")
             return
-        if m.type == dl.MSG_REQ_STATE:
+        kind = msg[0]
+        if kind == fr.MSG_REQ_STATE:
             self.counters["req_state"] += 1
-            self._queue_out(dl.gli_cmd_state(self.state))
+            self._queue_out(fr.state_message(self.state))
             return
-        if m.type == dl.MSG_CMD_STATE:
+        if kind == fr.MSG_CMD_STATE:
             self.counters["unexpected_state"] += 1      # the application does not command the PHY
             return
+        if kind != fr.MSG_FRAME:
+            self._refuse("type", f"unknown message type {kind} ({len(msg)} bytes)")
+            return
         try:
-            frame = dl.DataLinkFrame.decode(m.body)
-        except dl.FramingError as e:
-            self.counters["bad_frames"] += 1
-            log.info("%s: frame refused: %s", self.tx_name, e)
-        else:
-            if frame.src != self.backend.address:
-                self.counters["src_mismatch"] += 1
-            self.counters["tx"] += 1
-            self.backend.send(frame.dst, frame.payload, hint="dccomms")
-        self._queue_out(dl.gli_cmd_state(dl.PHY_READY))
+            self._frame(msg)
+        finally:
+            self._queue_out(fr.state_message(fr.PHY_READY))
+
+    def _frame(self, msg: bytes) -> None:
+        f = self.framing
+        try:
+            m = fr.parse_frame_message(f, msg)
+        except fr.FramingError as e:
+            self._refuse("frame", f"{f.name}: {e} (message of {len(msg)} bytes)")
+            return
+        if m.va is None:
+            self.counters["no_virtual_area"] += 1       # frame-only message: not dccomms' layout
+        dst = m.dst
+        if not 0 <= dst <= fr.MAX_ADDRESS:
+            self._refuse("dst", f"destination {dst} is not an address (virtual area dst, {f.name})")
+            return
+        if m.packet.src is not None and m.packet.src != self.backend.address:
+            self.counters["src_mismatch"] += 1
+        self.counters["tx"] += 1
+        self.backend.send(dst, m.packet.payload, hint="dccomms")
 
     # -- modem -> application -----------------------------------------------------------------------
     def _bk_frame(self, f: BackendFrame) -> None:
-        if not (0 <= f.src <= 255 and 0 <= f.dst <= 255) or len(f.data) > dl.MAX_PAYLOAD:
+        rf = self.rx_framing
+        if (rf.addressed and not (0 <= f.src <= 255 and 0 <= f.dst <= 255)) \
+                or rf.check_payload(len(f.data)) is not None:
             self.counters["rx_unrepresentable"] += 1
             return
-        self._io.call(self._queue_out, dl.gli_frame(dl.encode_frame(f.dst, f.src, f.data)), True)
+        seq = f.seq if f.seq is not None and f.seq >= 0 else self._seq
+        self._seq += 1
+        msg = fr.frame_message(rf, rf.encode(f.data, dst=f.dst, src=f.src), fr.VirtualArea(seq, f.src, f.dst))
+        self._io.call(self._queue_out, msg, True)
 
     def _bk_status(self, st: BackendStatus) -> None:
         self.counters[f"status_{st.event}"] += 1       # dccomms' GLI has no per-frame status to carry it
@@ -184,67 +281,96 @@ class MqBridge:
             self._writing = False
 
 
+@dataclass(frozen=True)
+class Received:
+    """A frame an application read: payload, addresses (DataLinkFrame: its header; others: the virtual
+    area), the virtual area's seq."""
+
+    payload: bytes
+    src: int
+    dst: int
+    seq: int
+    packet: fr.Packet
+
+
 class GliQueueClient:
     """The application side of the dccomms GLI queues (what `CommsDeviceService` does), blocking.
 
-        with GliQueueClient("bluerov0-dev", address=1) as c:
+        with GliQueueClient("bluerov0-dev", address=1, framing="VariableLength2BPacketBuilder") as c:
             c.send(2, b"hello")
-            frame = c.receive(timeout=5.0)        # a DataLinkFrame, or None
-    """
+            frame = c.receive(timeout=5.0)        # a Received, or None
 
-    def __init__(self, dccomms_id: str, address: int = 0, *, msgsize: int = dl.GLI_MAX_FRAME + 1,
-                 maxmsg: int = dl.GLI_MAXMSG) -> None:
+    As dccomms: queues created with 10 messages of 8192 bytes, mode 0777; REQ_STATE at start; every FRAME
+    message is the whole packet buffer with the virtual area (seq, src = `address`, dst).  dccomms'
+    ClearInputQueue reads with a 4000-byte buffer, which fails at once on 8192-byte queues, so, like it,
+    the client does not clear what is waiting."""
+
+    def __init__(self, dccomms_id: str, address: int = 0, *, framing: fr.Framing | str | None = None,
+                 msgsize: int = fr.GLI_MSGSIZE, maxmsg: int = fr.GLI_MAXMSG) -> None:
         self.dccomms_id = dccomms_id
         self.address = address
-        self.tx = MessageQueue.open(dl.tx_queue_name(dccomms_id), read=False, write=True, maxmsg=maxmsg,
-                                    msgsize=msgsize)
-        self.rx = MessageQueue.open(dl.rx_queue_name(dccomms_id), read=True, write=False, maxmsg=maxmsg,
-                                    msgsize=msgsize)
-        self.rx.drain()
-        self.phy_state: int | None = None
+        self.framing = _framing(framing, {}, "tx_framing")
+        self.tx = MessageQueue.open(tx_queue_name(dccomms_id), read=False, write=True, maxmsg=maxmsg,
+                                    msgsize=msgsize, mode=QUEUE_MODE)
+        self.rx = MessageQueue.open(rx_queue_name(dccomms_id), read=True, write=False, maxmsg=maxmsg,
+                                    msgsize=msgsize, mode=QUEUE_MODE)
+        self.phy_state: int | None = fr.PHY_BUSY
         self.counters: Counter[str] = Counter()
-        self.tx.send(dl.gli_req_state())
+        self._seq = 0
+        self.tx.send(bytes((fr.MSG_REQ_STATE,)))
 
-    def send(self, dst: int, payload: bytes) -> None:
-        self.send_raw(dl.encode_frame(dst, self.address, payload))
+    def message(self, dst: int, payload: bytes, seq: int | None = None) -> bytes:
+        """The FRAME message dccomms writes for `payload` to `dst`."""
+        if seq is None:
+            seq, self._seq = self._seq, self._seq + 1
+        frame = self.framing.encode(payload, dst=dst if self.framing.addressed else fr.BROADCAST,
+                                    src=self.address if self.framing.addressed else 0)
+        return fr.frame_message(self.framing, frame, fr.VirtualArea(seq, self.address, dst))
 
-    def send_raw(self, frame: bytes) -> None:
-        """Put any bytes in a FRAME message (tests: a corrupted frame)."""
-        self.phy_state = dl.PHY_BUSY
-        self.tx.send(dl.gli_frame(frame))
+    def send(self, dst: int, payload: bytes, seq: int | None = None) -> None:
+        self.send_raw(self.message(dst, payload, seq))
 
-    def receive(self, timeout: float = 5.0) -> dl.DataLinkFrame | None:
-        """The next frame (state messages are absorbed on the way), or None after `timeout` s."""
+    def send_raw(self, msg: bytes) -> None:
+        """Put any bytes on the queue (tests: a corrupted frame); the PHY is marked BUSY, as dccomms does."""
+        self.phy_state = fr.PHY_BUSY
+        self.tx.send(msg)
+
+    def receive(self, timeout: float = 5.0) -> Received | None:
+        """The next valid frame (state messages are absorbed on the way), or None after `timeout` s."""
         deadline = time.monotonic() + timeout
         while True:
             left = deadline - time.monotonic()
             msg = self.rx.receive(max(0.0, left))
             if msg is None:
                 return None
-            m = dl.parse_gli(msg)
-            if m.type == dl.MSG_CMD_STATE:
-                self.phy_state = m.state
+            if not msg:
+                continue
+            if msg[0] == fr.MSG_CMD_STATE and len(msg) == 2:
+                self.phy_state = msg[1]
                 self.counters["states"] += 1
                 continue
-            if m.type == dl.MSG_FRAME:
+            if msg[0] == fr.MSG_FRAME:
                 try:
-                    return dl.DataLinkFrame.decode(m.body)
-                except dl.FramingError:
+                    m = fr.parse_frame_message(self.framing, msg)
+                except fr.FramingError:
                     self.counters["bad_frames"] += 1
                     continue
+                va = m.va or fr.VirtualArea()
+                p = m.packet
+                return Received(p.payload, p.src if p.src is not None else va.src,
+                                p.dst if p.dst is not None else va.dst, va.seq, p)
 
     def wait_ready(self, timeout: float = 5.0) -> bool:
         """Wait for CMD_STATE READY.  Frames that arrive meanwhile are discarded: call it before any
         traffic is expected (at start, as dccomms' Start() does)."""
         deadline = time.monotonic() + timeout
-        while self.phy_state != dl.PHY_READY:
+        while self.phy_state != fr.PHY_READY:
             left = deadline - time.monotonic()
             msg = self.rx.receive(max(0.0, left))
             if msg is None:
                 return False
-            m = dl.parse_gli(msg)
-            if m.type == dl.MSG_CMD_STATE:
-                self.phy_state = m.state
+            if len(msg) == 2 and msg[0] == fr.MSG_CMD_STATE:
+                self.phy_state = msg[1]
         return True
 
     def close(self) -> None:

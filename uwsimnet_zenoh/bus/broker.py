@@ -412,6 +412,7 @@ class Broker:
             "prop": {"min": m.tx_channel.min_prop_s, "per_m": m.tx_channel.prop_s_per_m},
             "rx_prop": {"min": m.rx_channel.min_prop_s, "per_m": m.rx_channel.prop_s_per_m},
             "header_bytes": m.header_bytes, "max_frame_bytes": cfg.max_frame_bytes,
+            "tx_framing": cfg.tx_framing, "rx_framing": cfg.rx_framing or cfg.tx_framing,
             "fifo_capacity": m.fifo_cap, "fifo_bytes": m.fifo_bytes, "fifo_frames": len(m.fifo),
             "phy_busy": m.phy_busy, "mac": cfg.mac.name, "pose_known": known,
             "position": None if pos is None else [float(x) for x in pos],

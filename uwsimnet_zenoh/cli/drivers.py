@@ -47,6 +47,8 @@ def add_commands(sub: Any) -> None:
     ds.add_argument("--device", required=True, help="serial device or pty path")
     ds.add_argument("--address", type=int, help="the radio's address (default: the simulated modem's)")
     ds.add_argument("--baud", type=int, default=9600, help="0: leave the line speed alone (pty)")
+    ds.add_argument("--framing", metavar="BUILDER", help="dccomms packet builder on the line (default: the"
+                    " modem's txPacketBuilder in the scene, else DataLinkFrameBuilderCRC16)")
     common(ds)
     ds.set_defaults(fn=cmd_driver)
 
@@ -59,6 +61,8 @@ def add_commands(sub: Any) -> None:
     ee.set_defaults(fn=cmd_emulate)
     es = esub.add_parser("serial", help="pty speaking dccomms DataLinkFrames (transparent serial radio)")
     es.add_argument("--link", metavar="PATH", help="also make a symlink PATH to the pty (like a udev name)")
+    es.add_argument("--framing", metavar="BUILDER", help="dccomms packet builder on the pty (default: the"
+                    " modem's txPacketBuilder in the scene, else DataLinkFrameBuilderCRC16)")
     common(es)
     es.set_defaults(fn=cmd_emulate)
 
@@ -72,6 +76,12 @@ def add_commands(sub: Any) -> None:
     bs.set_defaults(fn=cmd_bridge)
     bm = bsub.add_parser("mq", help="dccomms POSIX message queues /<id>_tx_dlnk_phy, /<id>_rx_dlnk_phy")
     bm.add_argument("--dccomms-id", help="queue name prefix (default: --id)")
+    bm.add_argument("--framing", metavar="BUILDER",
+                    help="the applications' packet builder, e.g. VariableLength2BPacketBuilder (default: the"
+                         " scene's txPacketBuilder of the modem, else DataLinkFrameBuilderCRC16)")
+    bm.add_argument("--rx-framing", metavar="BUILDER",
+                    help="the builder of the frames written to the application (default: the scene's"
+                         " rxPacketBuilder, else --framing)")
     common(bm)
     bm.set_defaults(fn=cmd_bridge)
 
@@ -142,13 +152,16 @@ def cmd_driver(args: argparse.Namespace) -> int:
         else:
             from ..drivers.serial_radio import SerialRadioDriver
 
-            address = args.address
-            if address is None:
+            address, framing = args.address, _framing_arg(args.framing)
+            if address is None or framing is None:
                 info = query_info(s, Keys(world), args.id)
-                if info is None:
+                if info is None and address is None:
                     raise UserError(f"{args.id}: no simulated modem answers in world {world!r}; give --address")
-                address = int(info["address"])
-            drv = SerialRadioDriver(args.device, address, args.id, baud=args.baud or None)
+                if address is None:
+                    address = int(info["address"])
+                if framing is None and info is not None:
+                    framing = info.get("tx_framing") or None
+            drv = SerialRadioDriver(args.device, address, args.id, baud=args.baud or None, framing=framing)
         if not drv.open(wait=10.0):
             drv.close()
             raise UserError(f"{args.id}: the device did not open ({getattr(drv, 'last_error', '')})")
@@ -200,6 +213,18 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     return _serve(args, "emulator evologics", start)
 
 
+def _framing_arg(name: str | None) -> str | None:
+    """A --framing value checked (one-line error naming the known builders)."""
+    if not name:
+        return None
+    from ..phy.framing import builder
+
+    try:
+        return builder(name).name
+    except ValueError as e:
+        raise UserError(f"--framing: {e}") from None
+
+
 def _emulate_serial(args: argparse.Namespace) -> int:
     """`emulate serial`: a pty whose other end speaks dccomms frames, on simulated modem args.id."""
     from ..drivers.emulators import SerialRadioEmulator
@@ -209,7 +234,7 @@ def _emulate_serial(args: argparse.Namespace) -> int:
         raise UserError(f"--link {link}: exists and is not a symlink; not replacing it")
 
     def start(be: Any) -> tuple[Any, str]:
-        emu = SerialRadioEmulator(be, link=link)
+        emu = SerialRadioEmulator(be, link=link, framing=_framing_arg(args.framing))
         try:
             emu.start()
         except OSError as e:
@@ -233,9 +258,15 @@ def cmd_bridge(args: argparse.Namespace) -> int:
 
         if not posix_mq.available():
             raise UserError("POSIX message queues are not available on this system")
-        br = MqBridge(be, args.dccomms_id or args.id)
-        br.start()
-        return br, f"queues {br.tx_name} {br.rx_name}"
+        for name in (args.framing, args.rx_framing):
+            _framing_arg(name)
+        br = MqBridge(be, args.dccomms_id or args.id, framing=args.framing, rx_framing=args.rx_framing)
+        try:
+            br.start()
+        except posix_mq.MqError as e:
+            raise UserError(f"bridge mq: {e}") from None
+        return br, f"queues {br.tx_name} {br.rx_name} framing {br.framing.name}" + (
+            f" (rx {br.rx_framing.name})" if br.rx_framing.name != br.framing.name else "")
 
     return _serve(args, f"bridge {args.bridge}", start)
 

@@ -21,7 +21,7 @@ from . import deploy, drivers, experiment, sweep
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    scene = load_scene_file(args.scene)
+    scene = load_scene_file(args.scene, verbose=args.verbose)
     n_dev = len(scene.devices())
     print(f"{args.scene}: ok ({len(scene.channels)} channels, {len(scene.vehicles)} vehicles, {n_dev} devices,"
           f" {len(scene.flows)} flows)")
@@ -48,7 +48,7 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    scene = load_scene_file(args.scene)
+    scene = load_scene_file(args.scene, verbose=args.verbose)
     if args.world:
         scene = scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"world": args.world})})
     clock = args.clock or default_clock(scene, args)
@@ -108,6 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("run", help="run a scene")
     r.add_argument("scene")
+    r.add_argument("-v", "--verbose", action="store_true", help="list every scene warning (default: one per kind)")
     r.add_argument("--clock", choices=["virtual", "realtime"])
     r.add_argument("--duration", type=float, help="simulated seconds (default: the scene's)")
     r.add_argument("--speed", type=float, default=1.0,
@@ -135,6 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("validate", help="check a scene; exit 2 with file:line: message on errors")
     v.add_argument("scene")
+    v.add_argument("-v", "--verbose", action="store_true", help="list every warning (default: one per kind)")
     v.set_defaults(fn=cmd_validate)
 
     rep = sub.add_parser("report", help="per-flow metrics of a trace")

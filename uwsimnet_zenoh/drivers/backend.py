@@ -112,7 +112,7 @@ class DeliveryTracker:
 
     def on_trace(self, rec: dict[str, Any]) -> None:
         ev = rec.get("ev")
-        if ev not in ("rx", "drop") or rec.get("kind", "data") != "data":
+        if ev not in ("rx", "drop") or rec.get("kind", "data") != "data" or rec.get("implicit"):
             return
         key = (rec.get("src"), rec.get("seq"))
         hit = self._watch.get(key)  # type: ignore[arg-type]

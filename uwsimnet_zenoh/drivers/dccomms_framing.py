@@ -17,7 +17,9 @@ truncated one is still found.  It never raises on input.
 
 The GLI messages are what dccomms' `CommsDeviceService` exchanges over its POSIX message queues
 (`/<id>_tx_dlnk_phy`, `/<id>_rx_dlnk_phy`): one type byte (FRAME 0, REQ_STATE 1, CMD_STATE 2) followed by
-the whole frame (preamble and FCS included) or by one state byte (BUSY 0, READY 1).
+the whole packet buffer (frame, padding to the builder's maximum, 12-byte virtual area: see
+`phy.framing.frame_message`) or by one state byte (BUSY 0, READY 1).  Every other dccomms framing, and the
+CRC32 variant, is in `phy.framing`.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import UwsimnetError
+from ..phy import framing as fr
 
 PREAMBLE = b"\x55\x55"
 HEADER_SIZE = 6                    # preamble + dst + src + len
@@ -142,13 +145,18 @@ FrameEvent = FrameReceived | Garbage | BadLength | BadCrc | Truncated
 class FrameDecoder:
     """Feed bytes, get frames and error reports; resynchronises on the preamble after any error.
 
-    `max_payload` may be lowered (a radio with a smaller MTU).  `stall_timeout` (s): a frame whose
-    bytes stop arriving is reported as `Truncated` by `expire(now)` after that long, and the search
-    resumes after its preamble, so a cut-off frame cannot hold back the frames that follow it.
+    `framing`: any dccomms framing (`phy.framing`; default DataLinkFrame CRC16).  Frames of framings
+    without address fields come out with dst = broadcast and src = 0 (on a transparent radio every
+    receiver gets them; the application filters).  `max_payload` may be lowered (a radio with a smaller
+    MTU).  `stall_timeout` (s): a frame whose bytes stop arriving is reported as `Truncated` by
+    `expire(now)` after that long, and the search resumes after its preamble, so a cut-off frame cannot
+    hold back the frames that follow it.
     """
 
-    def __init__(self, max_payload: int = MAX_PAYLOAD, stall_timeout: float = 2.0) -> None:
-        self.max_payload = max_payload
+    def __init__(self, max_payload: int | None = None, stall_timeout: float = 2.0,
+                 framing: fr.Framing | None = None) -> None:
+        self.framing = framing or fr.DEFAULT
+        self.max_payload = self.framing.max_payload if max_payload is None else max_payload
         self.stall_timeout = stall_timeout
         self._buf = bytearray()
         self._since: float | None = None     # when the current partial frame started waiting
@@ -176,40 +184,75 @@ class FrameDecoder:
         if now - self._since < self.stall_timeout:
             return []
         buf = self._buf
+        pre = self.framing.preamble
         out: list[FrameEvent] = []
-        if buf[:2] == PREAMBLE:
-            expected = OVERHEAD + int.from_bytes(buf[4:6], "big") if len(buf) >= HEADER_SIZE else OVERHEAD
+        if buf[:len(pre)] == pre:
+            total = self._total(bytes(buf)) if len(buf) >= self.framing.header_len else None
+            expected = total if total is not None else self.framing.frame_size(0)
             self.counters["truncated"] += 1
             out.append(Truncated(expected, bytes(buf)))
             del buf[:1]
-        elif buf[:1] == PREAMBLE[:1] and len(buf) == 1:
-            self.counters["garbage_bytes"] += 1
+        elif len(buf) < len(pre) and pre.startswith(bytes(buf)):
+            self.counters["garbage_bytes"] += len(buf)
             out.append(Garbage(bytes(buf)))
             buf.clear()
         self._scan(out)
         self._since = now if self._buf else None
         return out
 
+    def _payload_len(self, total: int) -> int:
+        return total - self.framing.frame_size(0) if not isinstance(self.framing, fr.SimplePacket) \
+            else self.framing.n
+
+    def _total(self, head: bytes) -> int | None:
+        """The frame's length from its header, None if its length field is impossible here."""
+        total = self.framing.frame_length(head)
+        if total is None or self._payload_len(total) > self.max_payload:
+            return None
+        return total
+
+    def _length_field(self, head: bytes) -> int:
+        f = self.framing
+        if isinstance(f, fr.DataLinkFrame):
+            return int.from_bytes(head[4:6], "big")
+        if isinstance(f, fr.VariableLength2BPacket):
+            return int.from_bytes(head[1:3], "big")
+        if isinstance(f, fr.VariableLengthPacket):
+            return head[1]
+        return self._payload_len(f.max_frame)
+
     def _valid_later(self, claimed: int) -> int:
         """Offset of a later preamble that starts a complete, CRC-valid frame inside the bytes held
         for an incomplete candidate of `claimed` bytes at 0; -1 if none (then the candidate waits)."""
         buf = self._buf
-        k = buf.find(PREAMBLE, 1)
-        while 0 < k < claimed and k + OVERHEAD <= len(buf):
-            n = int.from_bytes(buf[k + 4:k + 6], "big")
-            end = k + OVERHEAD + n
-            if n <= self.max_payload and end <= len(buf) and crc16_xmodem(buf[k + 2:end]) == 0:
-                return k
-            k = buf.find(PREAMBLE, k + 1)
+        pre = self.framing.preamble
+        hl = self.framing.header_len
+        k = buf.find(pre, 1)
+        while 0 < k < claimed and k + hl <= len(buf):
+            total = self._total(bytes(buf[k:k + hl]))
+            if total is not None and k + total <= len(buf):
+                try:
+                    self.framing.parse(bytes(buf[k:k + total]))
+                    return k
+                except fr.FramingError:
+                    pass
+            k = buf.find(pre, k + 1)
         return -1
 
     def _scan(self, out: list[FrameEvent]) -> None:
         buf = self._buf
+        f = self.framing
+        pre = f.preamble
+        hl = f.header_len
         while buf:
-            i = buf.find(PREAMBLE)
+            i = buf.find(pre)
             if i < 0:
-                # keep a trailing 0x55: it may be the first half of the next preamble
-                keep = 1 if buf[-1] == PREAMBLE[0] else 0
+                # keep a trailing partial preamble: it may be the first part of the next one
+                keep = 0
+                for n in range(min(len(pre) - 1, len(buf)), 0, -1):
+                    if pre.startswith(bytes(buf[-n:])):
+                        keep = n
+                        break
                 if len(buf) > keep:
                     junk = bytes(buf[:len(buf) - keep])
                     self.counters["garbage_bytes"] += len(junk)
@@ -221,15 +264,15 @@ class FrameDecoder:
                 self.counters["garbage_bytes"] += len(junk)
                 out.append(Garbage(junk))
                 del buf[:i]
-            if len(buf) < HEADER_SIZE:
+            if len(buf) < hl:
                 return
-            n = int.from_bytes(buf[4:6], "big")
-            if n > self.max_payload:
+            head = bytes(buf[:hl])
+            total = self._total(head)
+            if total is None:
                 self.counters["bad_length"] += 1
-                out.append(BadLength(n, bytes(buf[:HEADER_SIZE])))
+                out.append(BadLength(self._length_field(head), head))
                 del buf[:1]
                 continue
-            total = OVERHEAD + n
             if len(buf) < total:
                 k = self._valid_later(total)
                 if k > 0:                     # a false preamble: a whole valid frame starts later
@@ -240,24 +283,37 @@ class FrameDecoder:
                     continue
                 return
             raw = bytes(buf[:total])
-            if crc16_xmodem(raw[2:]) != 0:
+            try:
+                p = f.parse(raw)
+            except fr.FramingError:
                 self.counters["bad_crc"] += 1
-                out.append(BadCrc(raw[2], raw[3], n, raw))
+                n = self._payload_len(total)
+                out.append(BadCrc(raw[2] if f.addressed else BROADCAST, raw[3] if f.addressed else 0, n, raw))
                 del buf[:1]
                 continue
             self.counters["frames"] += 1
-            out.append(FrameReceived(DataLinkFrame(raw[2], raw[3], raw[6:6 + n]), raw))
+            dst = p.dst if p.dst is not None else BROADCAST
+            src = p.src if p.src is not None else 0
+            out.append(FrameReceived(DataLinkFrame(dst, src, p.payload), raw))
             del buf[:total]
 
 
+def encoder(framing: fr.Framing | None = None):
+    """`encode(dst, src, payload) -> bytes` in `framing` (default DataLinkFrame CRC16)."""
+    f = framing or fr.DEFAULT
+    return lambda dst, src, payload: f.encode(payload, dst=dst, src=src)
+
+
 # -- GLI messages (dccomms CommsDeviceService over POSIX message queues) -------------------------
+# The FRAME message carries the whole packet buffer (frame, padding, virtual area): phy.framing.frame_message
+# and parse_frame_message build and read it for every framing; here only the type byte and the states.
 MSG_FRAME = 0
 MSG_REQ_STATE = 1
 MSG_CMD_STATE = 2
 PHY_BUSY = 0
 PHY_READY = 1
-GLI_MAX_FRAME = 7000
-"""dccomms' default `maxframesize`; a queue message is at most this + 1 type byte."""
+GLI_MAX_FRAME = 8191
+"""dccomms' default `maxframesize` (CommsDeviceService.h:30); a queue message is at most this + 1 type byte."""
 GLI_MAXMSG = 10
 
 
@@ -269,10 +325,6 @@ def tx_queue_name(dccomms_id: str) -> str:
 def rx_queue_name(dccomms_id: str) -> str:
     """The queue the application reads frames from (the PHY side writes it)."""
     return f"/{dccomms_id}_rx_dlnk_phy"
-
-
-def gli_frame(frame: bytes) -> bytes:
-    return bytes((MSG_FRAME,)) + frame
 
 
 def gli_req_state() -> bytes:

@@ -22,6 +22,7 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
+from ..phy import framing as fr
 from . import dccomms_framing as dl
 from . import evologics_at as at
 from ._aio import FdStream, LoopThread, ServerClient, TcpServer
@@ -374,12 +375,18 @@ class SerialRadioEmulator:
     Garbage, bad CRCs and bad lengths written to it are counted and skipped, as a dccomms receiver
     would.  `link`: also make a symlink with that name to the pty (like a udev name)."""
 
-    def __init__(self, backend: ModemBackend, *, link: str | None = None, max_payload: int = dl.MAX_PAYLOAD,
-                 stall_timeout: float = 2.0) -> None:
+    def __init__(self, backend: ModemBackend, *, link: str | None = None, max_payload: int | None = None,
+                 stall_timeout: float = 2.0, framing: fr.Framing | str | None = None) -> None:
         self.backend = backend
         self.link = link
-        self.max_payload = max_payload
-        self.decoder = dl.FrameDecoder(max_payload=max_payload, stall_timeout=stall_timeout)
+        if framing is None:       # the scene's txPacketBuilder of the modem (the broker's info), else CRC16
+            info = backend.info() if hasattr(backend, "info") else {}
+            framing = info.get("tx_framing") if isinstance(info, dict) else None
+        self.framing = fr.builder(framing) if isinstance(framing, str) and framing else \
+            (framing if isinstance(framing, fr.Framing) else fr.DEFAULT)
+        self.max_payload = self.framing.max_payload if max_payload is None else max_payload
+        self.decoder = dl.FrameDecoder(max_payload=self.max_payload, stall_timeout=stall_timeout,
+                                       framing=self.framing)
         self.counters: Counter[str] = Counter()
         self.path = ""
         self._io = LoopThread(f"uwsimnet-emu-serial-{backend.id}")
@@ -446,7 +453,7 @@ class SerialRadioEmulator:
         for ev in events:
             if isinstance(ev, dl.FrameReceived):
                 f = ev.frame
-                if f.src != self.backend.address:
+                if self.framing.addressed and f.src != self.backend.address:
                     self.counters["src_mismatch"] += 1
                 self.counters["tx"] += 1
                 self.backend.send(f.dst, f.payload, hint="dccomms")
@@ -458,11 +465,12 @@ class SerialRadioEmulator:
                     log.warning("%s: %s on the pty, frame skipped", self.backend.id, _frame_error(ev))
 
     def _bk_frame(self, f: BackendFrame) -> None:
-        if not (0 <= f.src <= 255 and 0 <= f.dst <= 255) or len(f.data) > self.max_payload:
+        if (self.framing.addressed and not (0 <= f.src <= 255 and 0 <= f.dst <= 255)) \
+                or len(f.data) > self.max_payload or self.framing.check_payload(len(f.data)) is not None:
             self.counters["rx_unrepresentable"] += 1
             return
         self.counters["rx"] += 1
-        self._io.call(self._write, dl.encode_frame(f.dst, f.src, f.data))
+        self._io.call(self._write, self.framing.encode(f.data, dst=f.dst, src=f.src))
 
     def _write(self, data: bytes) -> None:
         if self._stream is not None:

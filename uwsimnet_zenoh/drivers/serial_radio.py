@@ -22,6 +22,7 @@ import time
 import tty
 from typing import Any
 
+from ..phy import framing as fr
 from . import dccomms_framing as dl
 from ._aio import FdStream
 from .base import Driver, RxFrame
@@ -58,15 +59,20 @@ class SerialRadioDriver(Driver):
     driver_name = "serial-radio"
 
     def __init__(self, path: str, address: int, modem_id: str | None = None, *, baud: int | None = 9600,
-                 promiscuous: bool = False, stall_timeout: float = 2.0, **kw: Any) -> None:
+                 promiscuous: bool = False, stall_timeout: float = 2.0, framing: fr.Framing | str | None = None,
+                 **kw: Any) -> None:
         if not 0 <= address <= 254:
             raise ValueError(f"a dccomms address is one byte below 255, got {address}")
-        kw.setdefault("max_payload", dl.MAX_PAYLOAD)
+        self.framing = fr.builder(framing) if isinstance(framing, str) else (framing or fr.DEFAULT)
+        """The dccomms framing on the serial line (default DataLinkFrame CRC16; dccomms_s100_bridge used a
+        SimplePacket by default): frames of framings without addresses are heard by every radio."""
+        kw.setdefault("max_payload", self.framing.max_payload)
         super().__init__(modem_id or f"serial-{os.path.basename(path)}", address=address, **kw)
         self.path = path
         self.baud = baud
         self.promiscuous = promiscuous
-        self.decoder = dl.FrameDecoder(max_payload=self.max_payload, stall_timeout=stall_timeout)
+        self.decoder = dl.FrameDecoder(max_payload=self.max_payload, stall_timeout=stall_timeout,
+                                       framing=self.framing)
         self._stream: FdStream | None = None
 
     async def _open_link(self) -> FdStream:
@@ -81,14 +87,14 @@ class SerialRadioDriver(Driver):
     def _check(self, dst: int, data: bytes) -> str | None:
         if not 0 <= dst <= 255:
             return "invalid"
-        if len(data) > self.max_payload:
+        if len(data) > self.max_payload or self.framing.check_payload(len(data)) is not None:
             return "size"
         return None
 
     def _pump(self) -> None:
         while self.queue and self._link is not None:
             req = self.queue.popleft()
-            self.write(dl.encode_frame(req.dst, self.address or 0, req.data))
+            self.write(self.framing.encode(req.data, dst=req.dst, src=self.address or 0))
             self.counters["tx"] += 1
             self.emit_status(req, "sent")
 
@@ -100,7 +106,8 @@ class SerialRadioDriver(Driver):
 
     def _on_link_lost(self) -> None:
         self._stream = None
-        self.decoder = dl.FrameDecoder(max_payload=self.max_payload, stall_timeout=self.decoder.stall_timeout)
+        self.decoder = dl.FrameDecoder(max_payload=self.max_payload, stall_timeout=self.decoder.stall_timeout,
+                                       framing=self.framing)
 
     def _events(self, events: list[dl.FrameEvent]) -> None:
         for ev in events:
@@ -122,5 +129,5 @@ class SerialRadioDriver(Driver):
                                 ev.raw)
 
     def _info(self) -> dict[str, Any]:
-        return {"path": self.path, "baud": self.baud, "promiscuous": self.promiscuous,
+        return {"path": self.path, "baud": self.baud, "promiscuous": self.promiscuous, "framing": self.framing.name,
                 "decoder": dict(self.decoder.counters)}

@@ -138,7 +138,9 @@ class SimBackend:
         m = self.modem
         return {"id": m.id, "kind": "sim", "address": m.address, "vehicle": m.vehicle, "bitrate": m.bitrate,
                 "tx_channel": m.tx_channel.id, "rx_channel": m.rx_channel.id, "fifo_bytes": m.fifo_bytes,
-                "max_frame_bytes": m.cfg.max_frame_bytes, "counters": dict(m.counters)}
+                "max_frame_bytes": m.cfg.max_frame_bytes, "counters": dict(m.counters),
+                "tx_framing": getattr(m.cfg, "tx_framing", None),
+                "rx_framing": getattr(m.cfg, "rx_framing", None) or getattr(m.cfg, "tx_framing", None)}
 
     def close(self) -> None:
         m = self.modem

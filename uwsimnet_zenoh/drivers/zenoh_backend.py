@@ -31,6 +31,7 @@ from uwsimnet_gli.wire import Keys
 from ..bus.clock import WorldClock
 from ..errors import UwsimnetError
 from ..kernel.frame import BROADCAST
+from ..phy.framing import builder
 from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback
 
 log = logging.getLogger("uwsimnet.drivers.zenoh")
@@ -147,6 +148,16 @@ class ZenohBackend:
                 e.undeclare()
         self._subs = []
 
+    def _framed(self, n: int) -> int:
+        """Bytes of a frame of `n` payload bytes in the modem's framing (its scene's txPacketBuilder)."""
+        name = self._info.get("tx_framing")
+        if isinstance(name, str) and name:
+            try:
+                return builder(name).frame_size(n)
+            except ValueError:
+                pass
+        return n
+
     # -- Zenoh callbacks --------------------------------------------------------------------------
     def _on_trace(self, sample: zenoh.Sample) -> None:
         with contextlib.suppress(Exception):
@@ -160,7 +171,7 @@ class ZenohBackend:
         except wire.CodecError:
             return
         self.counters["received"] += 1
-        size = len(f.data) + int(self._info.get("header_bytes") or 0)
+        size = self._framed(len(f.data)) + int(self._info.get("header_bytes") or 0)
         # the broker's distance (older brokers: none, and link_metrics falls back to t_rx - t_tx)
         bf = BackendFrame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, size, self.bitrate,
                           f.dist, None if f.dist is None else self.prop_time(f.dist, rx=True))

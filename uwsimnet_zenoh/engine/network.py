@@ -109,6 +109,8 @@ class Network:
                                "arrival": f.arrival, "start": f.start, "stop": f.stop} for f in s.flows},
             "devices": {m.id: {"address": m.address, "vehicle": m.vehicle, "tx_channel": m.tx_channel.id,
                                "rx_channel": m.rx_channel.id, "bitrate": m.bitrate,
-                               "header_bytes": m.header_bytes, "mac": m.cfg.mac.name}
+                               "header_bytes": m.header_bytes, "mac": m.cfg.mac.name,
+                               # only when set: traces of scenes without a framing keep their bytes
+                               **({"framing": m.framing.name} if m.framing is not None else {})}
                         for m in self.modems.values()},
         }

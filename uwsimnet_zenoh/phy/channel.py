@@ -209,7 +209,7 @@ class Channel:
         frame = tx.frame
         if not intended:
             if not (lost or col):
-                modem.phy_overheard(frame)
+                modem.phy_overheard(frame, float(tx.dist[j]))
             return
         if lost or col:
             reason = "mult" if (lost and col) else ("prop" if lost else "col")
@@ -261,7 +261,7 @@ class Channel:
         frame = tx.frame
         if not intended:
             if reason is None:
-                modem.phy_overheard(frame)
+                modem.phy_overheard(frame, float(tx.dist[j]))
             return
         if reason is not None:
             self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=float(tx.dist[j]))

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 from ..kernel.frame import BROADCAST, Frame
+from .framing import Framing, builder
 
 if TYPE_CHECKING:
     from ..kernel.scheduler import Event, Scheduler
@@ -41,6 +42,7 @@ class DeviceParams(Protocol):
     intrinsic_rx_s: float
     jitter_tx_s: float
     jitter_rx_s: float
+    tx_framing: str | None          # a dccomms packet builder (phy.framing), or None: no framing
 
 
 class LossModel(Protocol):
@@ -81,6 +83,10 @@ class Modem:
         self.rx_channel = rx_channel
         self.bitrate = cfg.bitrate
         self.header_bytes = cfg.header_bytes
+        name = getattr(cfg, "tx_framing", None)
+        self.framing: Framing | None = builder(name) if name else None
+        """The dccomms framing of what this modem sends: its framed size goes on air (dccomms_ros puts
+        `GetPacketSize()` in the NetsimHeader the channel times frames with)."""
         self.min_distance = cfg.min_distance
         self.max_distance = cfg.max_distance
         self.error = error
@@ -105,6 +111,12 @@ class Modem:
         self.mac: MacHooks = _NO_MAC
         self.rx_slot = -1
 
+    def on_air_size(self, payload: int) -> int:
+        """Bytes on air for `payload` bytes of data: the framed size (if the device has a framing) plus
+        the device's headerBytes."""
+        framed = self.framing.frame_size(payload) if self.framing is not None else payload
+        return framed + self.header_bytes
+
     def attach_mac(self, mac: MacHooks) -> None:
         """Give the modem its MAC (built with this modem as its context), then listen on the rx channel."""
         self.mac = mac
@@ -123,7 +135,7 @@ class Modem:
         `refuse`: the caller knows the modem cannot take the frame (the bus: its vehicle has no pose
         yet); it is traced as enq then dropped at the transmitter with that reason."""
         now = self.sched.now
-        frame = Frame(self.address, dst, self._seq, payload + self.header_bytes, payload, data=data,
+        frame = Frame(self.address, dst, self._seq, self.on_air_size(payload), payload, data=data,
                       flow=flow, t_enq=now, tag=tag, dev=self.id)
         self._seq += 1
         self.counters["enq"] += 1
@@ -131,9 +143,11 @@ class Modem:
         if refuse is None:
             if self.closed:
                 refuse = "removed"
-            elif frame.size > self.cfg.max_frame_bytes:
+            elif frame.size > self.cfg.max_frame_bytes or (
+                    self.framing is not None and self.framing.check_payload(payload) is not None):
                 refuse = "size"
-            elif dst != BROADCAST and not self.tx_channel.has_address(dst):
+            elif dst != BROADCAST and not getattr(self.mac, "implicit_broadcast", False) \
+                    and not self.tx_channel.has_address(dst):
                 refuse = "noaddr"           # nobody on the channel has that address: say so now
         if refuse is not None:
             self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
@@ -165,15 +179,20 @@ class Modem:
         self.fifo_bytes -= frame.size
         return frame
 
-    def transmit(self, frame: Frame) -> None:
+    def transmit(self, frame: Frame, delay: float | None = None) -> None:
+        """Hand `frame` to the PHY: first bit on air after the intrinsic delay (and jitter), or after
+        `delay` s instead (a queued frame in dccomms_ros: 100 us after the previous one, no intrinsic delay)."""
         if self.phy_busy:
             raise RuntimeError(f"{self.id}: transmit while the transmitter is busy ({frame})")
         self.phy_busy = True
         frame.tries += 1
         cfg = self.cfg
-        d = cfg.intrinsic_tx_s
-        if cfg.jitter_tx_s > 0:
-            d = max(0.0, self._jitter.gauss(d, cfg.jitter_tx_s))
+        if delay is not None:
+            d = delay
+        else:
+            d = cfg.intrinsic_tx_s
+            if cfg.jitter_tx_s > 0:
+                d = max(0.0, self._jitter.gauss(d, cfg.jitter_tx_s))
         if d > 0:
             self.sched.after(d, self._on_air, frame)
         else:
@@ -214,7 +233,9 @@ class Modem:
         now = self.sched.now
         self.counters["rx"] += 1
         self.rx_dist = dist
-        self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist)
+        # a frame for another address handed up anyway (no MAC: the original's implicit broadcast)
+        implicit = frame.dst != BROADCAST and frame.dst != self.address
+        self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist, implicit=implicit)
         for cb in self.on_receive:
             cb(self, frame, now)
 
@@ -258,8 +279,9 @@ class Modem:
         self._rx_dist = dist
         self.mac.on_rx(frame)
 
-    def phy_overheard(self, frame: Frame) -> None:
+    def phy_overheard(self, frame: Frame, dist: float = 0.0) -> None:
         """Called by the channel: `frame`, addressed to another modem, arrived intact (if `overhears`)."""
+        self._rx_dist = dist
         self.mac.on_overhear(frame)
 
     def phy_failed(self, frame: Frame, reason: str) -> None:

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import re
 
+from ..mac import resolve
 from ..phy.expr import compile_expr
+from ..phy.framing import builder
 from .model import (
     Channel,
     Device,
@@ -178,7 +180,8 @@ class LegacyVocabulary(XmlReader):
         k = self.kids(el, single=(
             "dccommsId", "mac", "txChannelId", "rxChannelId", "bitrate", "txFifoSize", "intrinsicDelay",
             "jitter", "maxDistance", "minDistance", "rateErrorModel", "minPktErrRatio",
-            "pktErrRatioIncPerMeter", "macProtocol", "headerBytes", "maxFrameBytes", "disable"),
+            "pktErrRatioIncPerMeter", "macProtocol", "headerBytes", "maxFrameBytes", "txPacketBuilder",
+            "rxPacketBuilder", "disable"),
             ignore=_DEVICE_IGNORED)
         f = _Fields()
         els: dict[str, _El] = {}
@@ -225,6 +228,27 @@ class LegacyVocabulary(XmlReader):
                 f.set("intrinsic_tx_s", _ms_to_s(raw), "intrinsicDelay", e, raw)
         if (e := k.get("jitter")) is not None:
             self.tx_rx_ms(e, f, "jitter_tx_s", "jitter_rx_s")
+        for tag, field in (("txPacketBuilder", "tx_framing"), ("rxPacketBuilder", "rx_framing")):
+            if (e := k.get(tag)) is not None:
+                name, name_el = self.packet_builder(e)
+                f.set(field, name, f"{tag}/className", name_el)
+        if "tx_framing" in f.values and "max_frame_bytes" not in f.values:
+            # the largest frame is the framing's own (a VariableLength2BPacket of 2048 bytes is 2053 on air)
+            f.values["max_frame_bytes"] = builder(f.values["tx_framing"]).max_frame + f.values.get("header_bytes", 0)
+
+    def packet_builder(self, el: _El) -> tuple[str, _El]:
+        """`<txPacketBuilder>`/`<rxPacketBuilder>`: a dccomms packet-builder class (phy.framing.builder);
+        `libPath` (the shared library the original loaded it from) is not needed here."""
+        k = self.kids(el, single=("className", "libPath"))
+        name_el = self.need(k, "className")
+        name = self.text(name_el)
+        try:
+            framing = builder(name)
+        except ValueError as e:
+            self.fail(name_el, f"{el.tag}: {e}")
+        if (lib := k.get("libPath")) is not None and self.text(lib):
+            self.warn(lib, f"<libPath> in <{el.tag}> ignored (the dccomms framings are built in)")
+        return framing.name, name_el
 
     def tx_rx_ms(self, el: _El, f: _Fields, tx_field: str, rx_field: str) -> None:
         k = self.kids(el, single=("tx", "rx"))
@@ -282,12 +306,17 @@ class LegacyVocabulary(XmlReader):
             seen[child.tag] = child
             if child.tag == "name":
                 name_el = child
-            else:
-                params[child.tag] = self.text(child)
+            elif value := self.text(child):
+                params[child.tag] = value       # an empty parameter (a template's <maxBackoffSlots/>): its default
         if name_el is None:
             self.fail(el, "macProtocol: missing <name>")
+        name = self.text(name_el) or "none"     # the original's <name></name>: no MAC
+        try:
+            resolve(name)
+        except ValueError as e:
+            self.fail(name_el, f"macProtocol/name: {e}")
         f = _Fields()
-        f.set("name", self.string(name_el, "macProtocol/name"), "macProtocol/name", name_el)
+        f.set("name", name, "macProtocol/name", name_el)
         f.values["params"] = params
         return self.build(MacSpec, el, f)
 

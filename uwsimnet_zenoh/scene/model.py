@@ -78,6 +78,11 @@ class Device(_Model):
     mac: MacSpec = Field(default_factory=MacSpec)
     header_bytes: int = Field(default=0, ge=0)
     max_frame_bytes: int = Field(default=2048, gt=0)
+    tx_framing: str | None = None
+    """`txPacketBuilder/className`: the dccomms framing of what this device sends (phy.framing.builder
+    name); the framed size goes on air.  None: no framing (payload + headerBytes on air)."""
+    rx_framing: str | None = None
+    """`rxPacketBuilder/className`: the framing the device's applications read (default: tx_framing)."""
     acoustic: AcousticDeviceSpec | None = None
     """Set for an `AcousticCommsDevice`: its loss model comes from the acoustic physics (phy.acoustic) and
     `error` is not used.  Unless given explicitly, bitrate is then the preset's bit rate."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+from ..phy.framing import builder
 from .model import (
     BROADCAST,
     Device,
@@ -65,9 +66,14 @@ class NativeVocabulary(XmlReader):
                                       f" (line {self.disabled[flow.src]})")
             self.fail(els["src"], f"src: no device with dccommsId {flow.src!r}")
         dev = devices[flow.src][0]
-        on_air = flow.size + dev.header_bytes
+        framing = builder(dev.tx_framing) if dev.tx_framing else None
+        if framing is not None and (why := framing.check_payload(flow.size)) is not None:
+            self.fail(els["size"], f"size: {why} of device {dev.dccomms_id!r}")
+        framed = framing.frame_size(flow.size) if framing is not None else flow.size
+        on_air = framed + dev.header_bytes
         if on_air > dev.max_frame_bytes:
-            head = f" + headerBytes {dev.header_bytes} = {on_air}" if dev.header_bytes else ""
+            head = f" framed by {framing.name} = {framed}" if framing is not None else ""
+            head += f" + headerBytes {dev.header_bytes} = {on_air}" if dev.header_bytes else ""
             self.fail(els["size"], f"size: {flow.size}{head} bytes exceeds maxFrameBytes"
                                    f" {dev.max_frame_bytes} of device {dev.dccomms_id!r}")
         if flow.dst != BROADCAST:

@@ -42,8 +42,6 @@ _DEVICE_IGNORED: dict[str, str] = {
     "position": "ignored (the modem sits at the vehicle position)",
     "orientation": "ignored (the modem sits at the vehicle position)",
     "mesh": _UWSIM_3D,
-    "txPacketBuilder": "ignored (framing is not simulated: use <headerBytes> for on-air overhead)",
-    "rxPacketBuilder": "ignored (framing is not simulated: use <headerBytes> for on-air overhead)",
     "logLevel": "ignored (use the trace instead)",
 }
 _CHANNEL_IGNORED: dict[str, str] = {"logLevel": "ignored (use the trace instead)"}
@@ -57,7 +55,7 @@ _ACOUSTIC_DEVICE_TAGS = (
     "dccommsId", "mac", "txChannelId", "rxChannelId", "channelId", "symbolsPerSecond", "codingEff", "bitrate",
     "bitErrorRate", "range", "frequency", "K", "preset", "sourceLevel", "power", "bandwidth", "modulation",
     "directivityIndex", "implementationLoss", "margin", "txFifoSize", "intrinsicDelay", "jitter", "maxDistance",
-    "minDistance", "macProtocol", "headerBytes", "maxFrameBytes", "disable")
+    "minDistance", "macProtocol", "headerBytes", "maxFrameBytes", "txPacketBuilder", "rxPacketBuilder", "disable")
 _MODULATIONS = ("bpsk", "bfsk_coherent", "bfsk_noncoherent", "dpsk", "bpsk_rayleigh")
 
 NO_ERROR_MODEL_WARNING = "no rateErrorModel: assuming no propagation loss (the original assumed 0.01*m)"

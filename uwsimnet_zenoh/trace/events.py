@@ -29,7 +29,7 @@ class Tracer:
         self.sinks.append(sink)
 
     def emit(self, t: float, ev: str, ch: int, dev: str, frame: Frame, reason: str | None = None,
-             fifo: int | None = None, dist: float | None = None) -> None:
+             fifo: int | None = None, dist: float | None = None, implicit: bool = False) -> None:
         self.counts[ev, reason] += 1
         if not self.sinks:
             return
@@ -41,6 +41,8 @@ class Tracer:
             rec["fifo"] = fifo
         if dist is not None:
             rec["dist"] = round(float(dist), 3)
+        if implicit:
+            rec["implicit"] = True      # rx of a frame addressed to another modem (no MAC: implicit broadcast)
         for sink in self.sinks:
             sink(rec)
 
