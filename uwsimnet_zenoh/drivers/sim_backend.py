@@ -47,7 +47,6 @@ class SimWorld:
         self.tracker = DeliveryTracker()
         self.net.tracer.add(self.tracker.on_trace)
         self.backends: dict[str, SimBackend] = {}
-        self.msgs: dict[tuple[int, int], Message] = {}
         self._started = False
 
     # -- lifecycle ----------------------------------------------------------------------------------
@@ -153,12 +152,7 @@ class SimBackend:
         m = self.modem
         self.counters["sent"] += 1
         self._refused = False
-        frame = m.send(dst, len(data), data=data, tag=tag)
-        if msg is not None:
-            msgs = self.world.msgs
-            msgs[(m.address, frame.seq)] = msg
-            while len(msgs) > 10000:
-                del msgs[next(iter(msgs))]
+        frame = m.send(dst, len(data), data=data, tag=tag, msg=None if msg is None else msg.to_wire())
         if dst != BROADCAST and not self._refused:        # a frame refused at once has no outcome to wait for
             self.world.tracker.watch(m.address, frame.seq, m.id,
                                      lambda ev, reason, t, dist, f=frame: self._outcome(f, ev, reason, t, dist))
@@ -192,7 +186,7 @@ class SimBackend:
         data = frame.data if frame.data is not None else bytes(frame.payload)
         bf = BackendFrame(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, frame.size,
                           sender.bitrate if sender is not None else None, dist, prop, vel,
-                          self.world.msgs.get((frame.src, frame.seq)))
+                          Message.from_wire(frame.msg))
         for cb in list(self.on_frame):
             try:
                 cb(bf)
