@@ -18,7 +18,7 @@ import itertools
 import logging
 import os
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -167,6 +167,8 @@ class EvoLogicsEmulator:
         self._di = "EMPTY"                # AT?DI once no message is being delivered
         self._pool = 0
         self._delivered_bytes = 0
+        self._stream: deque[tuple[int, bytes, int]] = deque()   # data-mode packets not yet handed over
+        self._streaming: _Tx | None = None
         self._ticker: asyncio.Task | None = None
         self.closing = False
 
@@ -333,7 +335,7 @@ class EvoLogicsEmulator:
         else:
             self._finish(tx, True)
 
-    def _burst(self, dst: int, data: bytes, pid: int, report: bool) -> str:
+    def _burst(self, dst: int, data: bytes, pid: int, report: bool, stream: bool = False) -> str:
         pool = int(self.settings.get("ZL", "16384") or 16384)
         if self._pool + len(data) > pool:
             self.counters["buffer_full"] += 1
@@ -343,6 +345,8 @@ class EvoLogicsEmulator:
         self._txs[tx.token] = tx
         self._pool += len(data)
         self.counters["tx_burst"] += 1
+        if stream:
+            self._streaming = tx
         t0 = self.clock_us()
         if self._ext_any():                              # after the OK
             self._later(tx, 0, self._note, f"SENDSTART,{dst},burst,{tx.dur_us},0".encode(), True)
@@ -356,10 +360,37 @@ class EvoLogicsEmulator:
         if dst == 0 or dst == self.backend.address:
             self._note(f"DROPCNT,{len(data)}".encode())
             return
-        for i in range(0, len(data), at.BURST_MAX):
-            if self._burst(dst, data[i:i + at.BURST_MAX], c.pid, report=True) != "OK":
-                self._note(f"DROPCNT,{len(data) - i}".encode())
-                return
+        pool = int(self.settings.get("ZL", "16384") or 16384)
+        queued = sum(len(d) for _, d, _ in self._stream)
+        if self._pool + queued + len(data) > pool:
+            self.counters["buffer_full"] += 1
+            self._note(f"DROPCNT,{len(data)}".encode())
+            return
+        n = self._packet_bytes()
+        for i in range(0, len(data), n):
+            self._stream.append((dst, data[i:i + n], c.pid))
+        self._pump_stream()
+
+    def _packet_bytes(self) -> int:
+        """Data-mode burst data goes out in packets of Packet Time (AT?ZP, ms) at the bit rate, no larger than
+        the simulated modem takes (its max_frame_bytes and FIFO, less its header)."""
+        info = self.backend.info()
+        hdr = int(info.get("header_bytes") or 0)
+        limits = [at.BURST_MAX]
+        for key in ("max_frame_bytes", "fifo_capacity"):
+            if info.get(key):
+                limits.append(int(info[key]) - hdr)
+        bitrate = self.bitrate or info.get("bitrate")
+        zp = int(self.settings.get("ZP") or 0)
+        if zp and bitrate:
+            limits.append(int(zp / 1000 * float(bitrate) / 8))
+        return max(16, min(limits))
+
+    def _pump_stream(self) -> None:
+        """One data-mode packet at a time to the simulated modem: the next once the previous one is out."""
+        while self._stream and (self._streaming is None or self._streaming.done):
+            dst, data, pid = self._stream.popleft()
+            self._burst(dst, data, pid, report=True, stream=True)
 
     def _ext_any(self) -> bool:
         return any(c.channel["ZX"] == "1" for c in self.clients)
@@ -460,6 +491,9 @@ class EvoLogicsEmulator:
                 self._retire(tx)
         if messages:
             self._di = "EMPTY"
+        if bursts:
+            self._stream.clear()
+            self._streaming = None
 
     def _retire(self, tx: _Tx) -> None:
         tx.done = True
@@ -497,6 +531,9 @@ class EvoLogicsEmulator:
             return
         ev = st.event
         if tx.kind == "burst":
+            if tx is self._streaming and ev in ("sent", "dropped", "failed"):
+                self._streaming = None
+                self._io.loop.call_soon(self._pump_stream)
             if ev == "sent":
                 tx.t_sent = time.monotonic()
                 if not tx.report:
@@ -557,11 +594,16 @@ class EvoLogicsEmulator:
         msg = f.msg
         if msg is None or msg.kind not in ("burst", "im", "ims", "pbm"):
             msg = Message("im", "noack") if len(f.data) <= at.IM_MAX else Message("burst")
-        dur = self._burst_us(len(f.data)) if msg.kind == "burst" else im_duration_us(len(f.data))
-        t_start = self.clock_us()
         self._note(b"RECVSTART", extended=True)
-        # the simulator hands the frame over as it arrives; the modem reports it once demodulated
-        self._later(None, dur, self._rx_end, f, msg, m, dur, t_start)
+        if msg.kind == "burst":
+            # the simulator spent the burst's time on air (its bit rate) before handing it over
+            dur = self._burst_us(len(f.data))
+            self._rx_end(f, msg, m, dur, (self.clock_us() - dur) % CLOCK_WRAP)
+        else:
+            # an instant message is on air at the modem's IM rate, not the simulator's bit rate: the frame's
+            # arrival is taken as the start of reception and the modem reports it once demodulated
+            dur = im_duration_us(len(f.data))
+            self._later(None, dur, self._rx_end, f, msg, m, dur, self.clock_us())
 
     def _rx_end(self, f: BackendFrame, msg: Message, m: Any, dur: int, t_start: int) -> None:
         self._note(f"RECVEND,{t_start},{dur},{m.rssi},{m.integrity}".encode(), extended=True)
