@@ -1,8 +1,9 @@
 """Emulators: a simulated modem that looks like the real device, so software written for the hardware
 runs against the simulator unchanged.
 
-* `EvoLogicsEmulator`: a TCP server speaking the S2C AT command set (command mode), like the modem's
-  port 9200.  Point DUNE, DESERT, evins or your own code at `127.0.0.1:<port>`.
+* `EvoLogicsEmulator`: a TCP server speaking the S2C AT command set, command and data mode, like the
+  modem's port 9200.  Point evins, dmac, DESERT, DUNE (`interpreter="net"`) or your own code at
+  `127.0.0.1:<port>`.
 * `SerialRadioEmulator`: a pty that behaves like a transparent serial radio carrying dccomms
   DataLinkFrames (Seatooth S100 style).  Open `emulator.path` as you would `/dev/ttyUSB0`.
 
