@@ -323,6 +323,8 @@ class Host:
     raw: bytearray = field(default_factory=bytearray)
     errors: list[Term] = field(default_factory=list)
     lines: int = 0
+    seen: list[tuple[float, Term]] = field(default_factory=list)
+    """Every term but raw data, with the monotonic time it was read."""
 
     def __enter__(self) -> Host:
         self.sock = socket.create_connection((self.host, self.port), timeout=self.timeout)
@@ -364,6 +366,7 @@ class Host:
                 self.raw += t.data
                 continue
             self.lines += 1
+            self.seen.append((time.monotonic(), t))
             if t.kind == "error":
                 self.errors.append(t)
             elif t.kind != "sync":

@@ -137,12 +137,19 @@ def test_instant_messages_of_every_kind_cross_zenoh(modems, data_mode):
     assert (r.pid == 0) if data_mode else (r.pid is None)
     s0, s1 = note(a, "SENDSTART"), note(a, "SENDEND")
     assert s0.fields[:2] == (2, "im") and s0.fields[2] >= im_us(6) and s1.fields[3] == s0.fields[2]
-    r0 = note(a, "RECVSTART")
+    note(a, "RECVSTART")
     r1 = note(a, "RECVEND")
     d = note(a, "DELIVEREDIM")
     assert d.fields == (2,) and r1.fields[1] > 0
     assert time.monotonic() - t0 >= 2 * 0.1 + (im_us(6) + r1.fields[1]) / 1e6   # two crossings of 150 m
-    del r0
+    # in this order, each step no earlier than the time on air says (timers never fire early)
+    order = [(t, x.name) for t, x in a.seen if x.kind == "async"
+             and x.name in ("SENDSTART", "SENDEND", "RECVSTART", "RECVEND", "DELIVEREDIM")][:5]
+    assert [n for _, n in order] == ["SENDSTART", "SENDEND", "RECVSTART", "RECVEND", "DELIVEREDIM"], order
+    at_ = {n: t for t, n in order}
+    assert at_["SENDEND"] - at_["SENDSTART"] >= s0.fields[2] / 1e6 - 0.01
+    assert at_["RECVEND"] - at_["RECVSTART"] >= r1.fields[1] / 1e6 - 0.01
+    assert at_["RECVSTART"] - at_["SENDSTART"] >= s0.fields[2] / 1e6 + 2 * 0.1 - 0.01   # there and back, 150 m
     # IM without ack: flagged noack, no report
     assert a.send("im", 2, b"no ack", "noack") == "OK"
     assert recv(b, "recvim", b"no ack").fields[3] == "noack"

@@ -552,8 +552,11 @@ class EvoLogicsEmulator:
             back = (st.prop_time or 0.0) * 1e6
             ack = IMACK_US if self.ack_time is None else self.ack_time * 1e6
             if ev == "delivered":
+                # what the acknowledgement is received with: the link at the addressee's distance
+                d = (st.prop_time or 0.0) * float(self.settings.get("CA", "1500") or 1500)
+                lm = link_metrics(BackendFrame(tx.dst, self.backend.address, b"", distance=d, prop_time=st.prop_time))
                 self._later(tx, tx.dur_us + back, self._ack_start, tx)
-                self._later(tx, tx.dur_us + back + ack, self._ack_end, tx, int(ack))
+                self._later(tx, tx.dur_us + back + ack, self._ack_end, tx, int(ack), lm)
             else:
                 self._later(tx, tx.dur_us + back + ack, self._finish, tx, False)
 
@@ -561,12 +564,13 @@ class EvoLogicsEmulator:
         if not tx.done:
             self._note(b"RECVSTART", extended=True)
 
-    def _ack_end(self, tx: _Tx, ack_us: int) -> None:
+    def _ack_end(self, tx: _Tx, ack_us: int, lm: Any) -> None:
         if tx.done:
             return
         t = self.clock_us()
-        self._note(f"RECVEND,{(t - ack_us) % CLOCK_WRAP},{ack_us},{self.last['E']},{self.last['I']}".encode(),
-                   extended=True)
+        # AT?T is measured on the acknowledgement of an instant message too (manual section 5.12.5)
+        self.last.update(T=str(int(round(lm.prop_time * 1e6))), E=str(lm.rssi), I=str(lm.integrity))
+        self._note(f"RECVEND,{(t - ack_us) % CLOCK_WRAP},{ack_us},{lm.rssi},{lm.integrity}".encode(), extended=True)
         self._finish(tx, True)
 
     def _finish(self, tx: _Tx, ok: bool) -> None:
