@@ -7,6 +7,7 @@ evologics-drivers, the dmac2 README); they are reconstructions, not captures fro
 
 from __future__ import annotations
 
+import contextlib
 import random
 import socket
 import threading
@@ -362,6 +363,41 @@ def test_a_new_message_cancels_an_acknowledged_one_still_waiting(world):
     raw.send(b"AT?DI\n")
     assert raw.lines(1) in ([b"DELIVERING,im,0"], [b"EMPTY"])
     raw.close()
+
+
+def test_the_net_interpreter_for_dune(world):
+    """interpreter="net": AT?MODE answers NET (DUNE's sendInitialization requires it), no data mode."""
+    w, emus = world(two_modems(150.0), interpreter="net")
+    raw = Raw(emus["a-dev"].port)
+    raw.send(b"AT?MODE\nATO\n+++AT?AL\nAT?AL\n")
+    assert raw.lines(4) == [b"NET", b"ERROR WRONG FORMAT", b"ERROR WRONG FORMAT", b"1"]
+    raw.close()
+
+
+def test_data_mode_framing_and_burst_data(world):
+    """ATO: no answer; +++AT<cmd> answered +++AT<cmd>:<len>:<answer>, notifications +++AT:<len>:<line>, raw
+    bytes are burst data to AT!AR and come out raw at a data-mode peer; +++ATC: OK in command mode."""
+    w, emus = world(two_modems(150.0))
+    a, b = Raw(emus["a-dev"].port), Raw(emus["b-dev"].port)
+    a.send(b"ATO\n+++AT?AL\n+++AT!AR2\n+++AT&V\n")
+    assert a.lines(2) == [b"+++AT?AL:1:1", b"+++AT!AR:2:OK"]
+    head = a.lines(1)[0]
+    assert head.startswith(b"+++AT&V:") and head.endswith(b"Source Level: 0")
+    assert a.lines(18)[-1] == b""                     # the block's lines, then the frame's own CRLF
+    b.send(b"ATO\n")
+    a.send(b"raw \r\n bytes +++ not a command")
+    got = b""
+    end = time.monotonic() + WAIT
+    while len(got) < 30 and time.monotonic() < end:
+        b.s.settimeout(0.2)
+        with contextlib.suppress(TimeoutError):
+            got += b.s.recv(4096)
+    assert got == b"raw \r\n bytes +++ not a command"
+    assert a.lines(1) == [b"+++AT:14:DELIVERED,30,2"]
+    a.send(b"+++ATC\nAT?AL\n")
+    assert a.lines(2) == [b"OK", b"1"]
+    a.close()
+    b.close()
 
 
 def test_no_addressee_means_failedim_and_emulator_answers_like_the_device(world, drivers):

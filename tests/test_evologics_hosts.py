@@ -46,6 +46,7 @@ def modems(tmp_path_factory):
                         WORLD, "--connect", b.endpoint])
             started.append(emu)
             emu.expect("uwsimnet: emulator evologics ready", 20)
+        ports["endpoint"] = b.endpoint
         yield ports
     finally:
         errors = stop_all(started)
@@ -225,6 +226,24 @@ def test_busy_then_retry_after_di_empty(modems):
     recv(b, "recvim", b"first")
     recv(b, "recvim", b"second")
     done(a, b)
+
+
+def test_an_app_on_the_bus_chooses_the_kind_too(modems):
+    """A GLI application puts kind/flag on modem a-m's tx: b-m's emulator reports it as such, and an app
+    reading b-m's rx gets the same fields (docs/gli-protocol.md)."""
+    from uwsimnet_gli import World
+
+    with Host("127.0.0.1", modems["b-m"]) as b, World(WORLD, connect=modems["endpoint"]) as w:
+        rx_b = w.modem("b-m")
+        w.modem("a-m").send(2, b"from an app", msg={"kind": "im", "flag": "ack", "pid": 0})
+        assert recv(b, "recvim", b"from an app").fields[3] == "ack"
+        f = rx_b.receive(timeout=10)
+        while f is not None and f.data != b"from an app":
+            f = rx_b.receive(timeout=10)
+        assert f is not None and f.msg == {"kind": "im", "flag": "ack", "pid": 0}
+        w.modem("a-m").send(2, b"no kind")
+        assert recv(b, "recvim", b"no kind").fields[3] == "noack"     # not said: a short frame is an IM
+        done(b)
 
 
 def test_every_line_parses_by_dune_formats(modems):
