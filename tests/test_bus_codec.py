@@ -19,6 +19,27 @@ def test_tx_roundtrip():
     assert (r.dst, r.data, r.tag, r.flow) == (255, b"", None, "f1")
 
 
+def test_the_kind_of_message_crosses_in_tx_and_rx():
+    """kind/flag/ts/pid (docs/gli-protocol.md): what an S2C modem's receiver reports as RECVIM(flag) /
+    RECVIMS / RECVPBM / RECV, passed from tx to rx unchanged; absent when the sender did not say."""
+    for msg in ({"kind": "im", "flag": "ack", "pid": 0}, {"kind": "im", "flag": "noack"}, {"kind": "ims"},
+                {"kind": "ims", "ts": 4294967295, "pid": 7}, {"kind": "pbm"}, {"kind": "burst", "pid": 3}):
+        r = wire.decode_tx(wire.encode_tx(2, b"m", tag=1, msg=msg))
+        assert r.msg == msg
+        assert msgpack.unpackb(wire.encode_tx(2, b"m", msg=msg)) == {"dst": 2, "data": b"m", **msg}
+        assert wire.decode_rx(wire.encode_rx(1, 2, b"m", 0, 0.0, 0.1, 10.0, r.msg)).msg == msg
+    assert wire.decode_tx(wire.encode_tx(2, b"m")).msg is None
+    assert wire.decode_rx(wire.encode_rx(1, 2, b"m", 0, 0.0, 0.1)).msg is None
+    for bad in ({"kind": "fax"}, {"kind": "burst", "flag": "ack"}, {"kind": "im", "flag": "maybe"},
+                {"kind": "im", "ts": 5}, {"kind": "ims", "ts": -1}, {"kind": "ims", "ts": 1 << 32},
+                {"kind": "pbm", "pid": 8}, {"flag": "ack"}):
+        with pytest.raises(CodecError) as e:
+            wire.decode_tx(msgpack.packb({"dst": 2, "data": b"m", "tag": 5, **bad}))
+        assert e.value.reason == "invalid" and e.value.tag == 5
+        with pytest.raises(ValueError):
+            wire.encode_tx(2, b"m", msg=bad)
+
+
 def test_tx_ignores_unknown_keys_and_nil_tag():
     r = wire.decode_tx(msgpack.packb({"dst": 1, "data": b"x", "tag": None, "future": [1, 2]}))
     assert r.tag is None and r.data == b"x"

@@ -7,6 +7,7 @@ evologics-drivers, the dmac2 README); they are reconstructions, not captures fro
 
 from __future__ import annotations
 
+import contextlib
 import random
 import socket
 import threading
@@ -16,7 +17,7 @@ import pytest
 from conftest import device, scene, vehicle
 
 from uwsimnet_zenoh.drivers import evologics_at as at
-from uwsimnet_zenoh.drivers.emulators import BUSY_IM, EvoLogicsEmulator
+from uwsimnet_zenoh.drivers.emulators import ERRORS, EvoLogicsEmulator, im_duration_us
 from uwsimnet_zenoh.drivers.evologics import EvoLogicsDriver
 from uwsimnet_zenoh.drivers.sim_backend import SimWorld
 
@@ -59,7 +60,12 @@ TRANSCRIPTS = [
      [at.Ok("*SENDIM"), at.Delivered("im", 2)]),
     ("im failed", [b"AT*SENDIM,5,7,ack,hello\n"], b"OK\r\nFAILEDIM,7\r\n",
      [at.Ok("*SENDIM"), at.Failed("im", 7)]),
-    ("busy", [b"AT*SENDIM,5,2,ack,hello\n"], b"BUSY DELIVERING\r\n", [at.Busy("*SENDIM", "DELIVERING")]),
+    ("busy", [b"AT*SENDIM,5,2,ack,hello\n"], b"BUSY DELIVERING INSTANT MESSAGE TO 2\r\n",
+     [at.Busy("*SENDIM", "DELIVERING INSTANT MESSAGE TO 2")]),
+    ("deferred", [b"AT!L3\n", b"AT?L\n"], b"[*]OK\r\n[*]3\r\n", [at.Ok("!L"), at.Reply("?L", "3")]),
+    ("async never answers", [b"AT?AL\n"], b"RECVPROBE,1,2,3,4,5,0.0\r\n%KEY,v\r\n1\r\n",
+     [at.Notification("RECVPROBE", ("1", "2", "3", "4", "5", "0.0")), at.Notification("%KEY", ("v",)),
+      at.Reply("?AL", "1")]),
     ("burst", [b"AT*SEND,10,2,0123456789\n"], b"OK\r\nDELIVERED,10,2\r\n",
      [at.Ok("*SEND"), at.Delivered("burst", 2, 10)]),
     ("burst failed", [b"AT*SEND,3,2,abc\n"], b"OK\r\nFAILED,3,2\r\n", [at.Ok("*SEND"), at.Failed("burst", 2, 3)]),
@@ -284,15 +290,18 @@ def test_instant_message_round_trip_with_modelled_delay(world, drivers):
     da.send(2, payload, tag=41)
     assert until(lambda: rx and any(s.event == "acked" for _, s in st))
     t_rx, f = rx[0]
-    # 10 bytes at 2000 bps = 40 ms on air + 150 m at 1500 m/s = 100 ms
-    assert 0.13 <= t_rx - t0 < 0.6
+    # 10 bytes at 2000 bps = 40 ms in the simulator + 150 m at 1500 m/s = 100 ms, then the modem reports
+    # it once demodulated: an IM of 10 bytes takes im_duration_us(10) = 235520 us at the S2C IM rate
+    dur = im_duration_us(len(payload))
+    assert dur == 235520
+    assert 0.14 + dur / 1e6 <= t_rx - t0 < 1.0
     assert (f.src, f.dst, f.data) == (1, 2, payload)
-    assert f.meta["kind"] == "im" and f.meta["flag"] == "ack" and f.meta["duration_us"] == 40000
+    assert f.meta["kind"] == "im" and f.meta["flag"] == "ack" and f.meta["duration_us"] == dur
     assert -120 <= f.rssi < -20 and 100 < f.integrity <= 255
     events = [s.event for _, s in st]
     assert events == ["queued", "sent", "acked"] and all(s.tag == 41 for _, s in st)
     t_ack = next(t for t, s in st if s.event == "acked")
-    assert t_ack - t_rx >= 0.1                                        # the acknowledgement travels back
+    assert t_ack - t_rx >= 0.1 + 0.14                                 # it travels back, 147 ms on air
     assert db.query("?T") == "100000"                                # propagation time, us
     assert int(db.query("?E")) == f.rssi
 
@@ -317,23 +326,78 @@ def test_burst_data_and_two_way_traffic(world, drivers):
     assert db.counters["status_dropped"] == 1
 
 
-def test_busy_while_an_instant_message_is_being_delivered(world, drivers):
+def test_busy_while_an_instant_message_is_on_air_and_the_driver_retries(world, drivers):
     w, emus = world(two_modems(300.0))
     raw = Raw(emus["a-dev"].port)
-    raw.send(b"AT*SENDIM,4,2,ack,one!\nAT*SENDIM,4,2,ack,two!\n")
-    assert raw.lines(2) == [b"OK", BUSY_IM.encode()]
-    # the driver on the same modem meets the same refusal while that delivery runs
-    st = []
-    da = drivers("127.0.0.1", emus["a-dev"].port, "a-dev", on_status=st.append, init=())
+    raw.send(b"AT*SENDIM,4,2,ack,one!\nAT*SENDIM,4,2,ack,two!\nAT?DI\n")
+    assert raw.lines(3) == [b"OK", b"BUSY DELIVERING INSTANT MESSAGE TO 2", b"DELIVERING,im,0"]
+    # the driver on the same modem meets the same refusal: it polls AT?DI and sends again, nothing is lost
+    st, evs = [], []
+    da = drivers("127.0.0.1", emus["a-dev"].port, "a-dev", on_status=st.append, on_event=evs.append, init=(),
+                 im_ack=False)
     assert da.open(WAIT)
     da.send(2, b"three", tag=3)
-    assert until(lambda: any(s.event == "dropped" for s in st))
-    s = next(s for s in st if s.event == "dropped")
-    assert s.reason == "busy" and "DELIVERING" in s.detail
-    assert raw.lines(1) == [b"DELIVEREDIM,2"]                         # the first message got through
+    assert until(lambda: any(s.event == "sent" for s in st), 2 * WAIT)
+    assert not any(s.event in ("dropped", "failed") for s in st)
+    assert any(e.kind == "busy" for e in evs) and da.counters["busy_resent"] >= 1
+    lines = raw.lines(2, timeout=2 * WAIT)                            # the first one got through, then
+    assert lines[0] == b"DELIVEREDIM,2" or lines[1] == b"DELIVEREDIM,2"   # was the driver's noack IM
     raw.send(b"AT?DI\n")
-    assert raw.lines(1) == [b"EMPTY"]
+    assert until(lambda: raw.lines(1, 0.2) == [b"EMPTY"] or (raw.send(b"AT?DI\n") and False), WAIT)
     raw.close()
+
+
+def test_a_new_message_cancels_an_acknowledged_one_still_waiting(world):
+    """Messages are not queued (manual 1.7 section 5.5.4): sent before the acknowledgement came, the next
+    message cancels the first (CANCELEDIM) and AT?DI follows the new one."""
+    w, emus = world(two_modems(150.0), ack_time=30.0)            # an acknowledgement that takes its time
+    raw = Raw(emus["a-dev"].port)
+    raw.send(b"AT*SENDIM,5,2,ack,first\n")
+    assert raw.lines(1) == [b"OK"]
+    answer = b"BUSY"
+    while answer.startswith(b"BUSY"):                             # on air: busy; then waiting for the ack
+        raw.send(b"AT*SENDIM,6,2,noack,second\n")
+        answer = raw.lines(1)[0]
+    assert answer == b"OK"
+    assert raw.lines(1) == [b"CANCELEDIM,2"]
+    raw.send(b"AT?DI\n")
+    assert raw.lines(1) in ([b"DELIVERING,im,0"], [b"EMPTY"])
+    raw.close()
+
+
+def test_the_net_interpreter_for_dune(world):
+    """interpreter="net": AT?MODE answers NET (DUNE's sendInitialization requires it), no data mode."""
+    w, emus = world(two_modems(150.0), interpreter="net")
+    raw = Raw(emus["a-dev"].port)
+    raw.send(b"AT?MODE\nATO\n+++AT?AL\nAT?AL\n")
+    assert raw.lines(4) == [b"NET", b"ERROR WRONG FORMAT", b"ERROR WRONG FORMAT", b"1"]
+    raw.close()
+
+
+def test_data_mode_framing_and_burst_data(world):
+    """ATO: no answer; +++AT<cmd> answered +++AT<cmd>:<len>:<answer>, notifications +++AT:<len>:<line>, raw
+    bytes are burst data to AT!AR and come out raw at a data-mode peer; +++ATC: OK in command mode."""
+    w, emus = world(two_modems(150.0))
+    a, b = Raw(emus["a-dev"].port), Raw(emus["b-dev"].port)
+    a.send(b"ATO\n+++AT?AL\n+++AT!AR2\n+++AT&V\n")
+    assert a.lines(2) == [b"+++AT?AL:1:1", b"+++AT!AR:2:OK"]
+    head = a.lines(1)[0]
+    assert head.startswith(b"+++AT&V:") and head.endswith(b"Source Level: 0")
+    assert a.lines(18)[-1] == b""                     # the block's lines, then the frame's own CRLF
+    b.send(b"ATO\n")
+    a.send(b"raw \r\n bytes +++ not a command")
+    got = b""
+    end = time.monotonic() + WAIT
+    while len(got) < 30 and time.monotonic() < end:
+        b.s.settimeout(0.2)
+        with contextlib.suppress(TimeoutError):
+            got += b.s.recv(4096)
+    assert got == b"raw \r\n bytes +++ not a command"
+    assert a.lines(1) == [b"+++AT:14:DELIVERED,30,2"]
+    a.send(b"+++ATC\nAT?AL\n")
+    assert a.lines(2) == [b"OK", b"1"]
+    a.close()
+    b.close()
 
 
 def test_no_addressee_means_failedim_and_emulator_answers_like_the_device(world, drivers):
@@ -342,13 +406,16 @@ def test_no_addressee_means_failedim_and_emulator_answers_like_the_device(world,
     raw.send(b"AT*SENDIM,2,9,ack,hi\n")                              # nobody has address 9
     assert raw.lines(2, timeout=WAIT) == [b"OK", b"FAILEDIM,9"]
     raw.send(b"AT?AL\nAT!AL1\nAT!AL5\nAT?L\nAT!L2\nAT?L\nATI7\nATA\nAT!ZZ9\nnonsense\n"
-             b"AT*SENDIM,99,2,ack,x\nAT*SEND,3,2,abcdef\nATO\n")
-    assert raw.lines(13) == [b"1", b"OK", b"ERROR NOT ACCEPTED", b"0", b"OK", b"2", b"EvoLogics GmbH",
-                             b"INITIATION LISTEN", b"ERROR WRONG FORMAT", b"ERROR WRONG FORMAT",
-                             b"ERROR OUT OF RANGE", b"ERROR WRONG FORMAT", b"ERROR NOT SUPPORTED"]
+             b"AT*SENDIM,99,2,ack,x\nAT*SEND,3,2,abcdef\nAT*SENDIM,1,1,noack,x\nAT*SENDIM,1,255,ack,x\nATI5\n")
+    got = raw.lines(15)
+    assert got == [b"1", b"OK", b"ERROR NOT ACCEPTED", b"0", b"OK", b"2", b"EvoLogics GmbH",
+                   b"INITIATION LISTEN", b"ERROR WRONG FORMAT", b"ERROR WRONG FORMAT",
+                   b"ERROR OUT OF RANGE", b"ERROR WRONG FORMAT", b"ERROR WRONG DESTINATION ADDRESS",
+                   b"ERROR WRONG FORMAT", b"ERROR OUT OF RANGE"]
+    assert all(x.split(b" ")[0] != b"ERROR" or x.decode() in ERRORS for x in got)   # the modem's own list
     raw.send(b"AT&V\n")
-    block = raw.lines(len(emus["a-dev"].settings) + 1)
-    assert block[-1] == b"" and b"AL: 1" in block
+    block = raw.lines(19)
+    assert block[-1] == b"" and block[0] == b"Source Level: 2" and b"Local Address: 1" in block
     # extended notifications around a reception
     raw_b = Raw(emus["b-dev"].port)
     raw_b.send(b"AT@ZX1\n")
@@ -357,7 +424,7 @@ def test_no_addressee_means_failedim_and_emulator_answers_like_the_device(world,
     assert raw.lines(1) == [b"OK"]
     got = raw_b.lines(3)
     assert got[0] == b"RECVSTART" and got[1].startswith(b"RECVEND,")
-    assert got[2].startswith(b"RECVIM,2,1,2,noack,8000,") and got[2].endswith(b",ok")
+    assert got[2].startswith(f"RECVIM,2,1,2,noack,{im_duration_us(2)},".encode()) and got[2].endswith(b",ok")
     raw.close()
     raw_b.close()
 

@@ -233,7 +233,7 @@ class MqBridge:
         if m.packet.src is not None and m.packet.src != self.backend.address:
             self.counters["src_mismatch"] += 1
         self.counters["tx"] += 1
-        self.backend.send(dst, m.packet.payload, hint="dccomms")
+        self.backend.send(dst, m.packet.payload)
 
     # -- modem -> application -----------------------------------------------------------------------
     def _bk_frame(self, f: BackendFrame) -> None:

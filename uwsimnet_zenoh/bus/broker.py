@@ -288,14 +288,14 @@ class Broker:
             self.counters["nopose"] += 1
             ep.bad["nopose"] += 1
             self.warn(f"nopose:{dev}", "%s: tx dropped (nopose): vehicle %s has no pose yet", dev, m.vehicle)
-        m.send(req.dst, len(req.data), data=req.data, flow=req.flow, tag=req.tag, refuse=refuse)
+        m.send(req.dst, len(req.data), data=req.data, flow=req.flow, tag=req.tag, refuse=refuse, msg=req.msg)
 
     def _on_rx(self, m: Modem, frame: Frame, t: float) -> None:
         ep = self.serving(m.id)
         if ep is None:
             return
         data = frame.data if frame.data is not None else bytes(frame.payload)
-        ep.rx_pub.put(wire.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, m.rx_dist))
+        ep.rx_pub.put(wire.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, m.rx_dist, frame.msg))
 
     def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
         tag = frame.tag if isinstance(frame.tag, int) and not isinstance(frame.tag, bool) else None

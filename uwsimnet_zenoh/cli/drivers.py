@@ -41,6 +41,8 @@ def add_commands(sub: Any) -> None:
     de.add_argument("--host", required=True)
     de.add_argument("--port", type=int, default=9200)
     de.add_argument("--mode", choices=["auto", "im", "burst"], default="auto")
+    de.add_argument("--link-mode", choices=["command", "data"], default="command",
+                    help="speak the modem's command mode, or data mode (ATO, +++AT escapes)")
     common(de)
     de.set_defaults(fn=cmd_driver)
     ds = dsub.add_parser("serial", help="transparent serial radio carrying dccomms frames")
@@ -57,6 +59,8 @@ def add_commands(sub: Any) -> None:
     ee = esub.add_parser("evologics", help="EvoLogics S2C AT command server on TCP")
     ee.add_argument("--port", type=int, default=9200)
     ee.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    ee.add_argument("--interpreter", choices=["at", "net"], default="at",
+                    help="at: data and command mode, AT?MODE answers AT; net: command mode only, NET (DUNE)")
     common(ee)
     ee.set_defaults(fn=cmd_emulate)
     es = esub.add_parser("serial", help="pty speaking dccomms DataLinkFrames (transparent serial radio)")
@@ -148,7 +152,7 @@ def cmd_driver(args: argparse.Namespace) -> int:
         if args.driver == "evologics":
             from ..drivers.evologics import EvoLogicsDriver
 
-            drv: Any = EvoLogicsDriver(args.host, args.port, args.id, mode=args.mode)
+            drv: Any = EvoLogicsDriver(args.host, args.port, args.id, mode=args.mode, link_mode=args.link_mode)
         else:
             from ..drivers.serial_radio import SerialRadioDriver
 
@@ -206,7 +210,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         return _emulate_serial(args)
 
     def start(be: Any) -> tuple[Any, str]:
-        emu = EvoLogicsEmulator(be, args.host, args.port)
+        emu = EvoLogicsEmulator(be, args.host, args.port, interpreter=args.interpreter)
         host, port = emu.start()
         return emu, f"{host}:{port}"
 

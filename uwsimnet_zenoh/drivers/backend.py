@@ -27,13 +27,51 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+MESSAGE_KINDS = ("burst", "im", "ims", "pbm")
+IM_FLAGS = ("ack", "noack", "force")
+
+
+@dataclass(frozen=True)
+class Message:
+    """The kind of message the sender's modem sent, as the receiver's modem reports it: burst data, an
+    instant message with its flag, a synchronous instant message with its requested time, a piggy-back
+    message; `pid` the protocol id of the sender's interface.  It crosses Zenoh in the wire's tx and rx
+    messages (fields `kind`, `flag`, `ts`, `pid`: docs/gli-protocol.md)."""
+
+    kind: str = "burst"            # burst | im | ims | pbm
+    flag: str | None = None        # im: ack | noack | force
+    ts: int | None = None          # ims: requested transmission time, µs of the sender's clock (None: at once)
+    pid: int | None = None         # 0..7
+
+    def __post_init__(self) -> None:
+        if self.kind not in MESSAGE_KINDS:
+            raise ValueError(f"kind must be one of {MESSAGE_KINDS}, got {self.kind!r}")
+        if self.flag is not None and (self.kind != "im" or self.flag not in IM_FLAGS):
+            raise ValueError(f"flag {self.flag!r} is for kind im only, one of {IM_FLAGS}")
+        if self.ts is not None and (self.kind != "ims" or not 0 <= self.ts < 1 << 32):
+            raise ValueError(f"ts {self.ts!r} is for kind ims only, 0 .. 2^32-1 µs")
+        if self.pid is not None and not 0 <= self.pid <= 7:
+            raise ValueError(f"pid must be 0..7, got {self.pid!r}")
+
+    def to_wire(self) -> dict[str, Any]:
+        """The wire's tx/rx fields (uwsimnet_gli.wire.check_msg)."""
+        return {k: v for k, v in (("kind", self.kind), ("flag", self.flag), ("ts", self.ts), ("pid", self.pid))
+                if v is not None}
+
+    @classmethod
+    def from_wire(cls, m: dict[str, Any] | None) -> Message | None:
+        """From checked wire fields (None: the sender did not say)."""
+        if not m or m.get("kind") is None:
+            return None
+        return cls(m["kind"], m.get("flag"), m.get("ts"), m.get("pid"))
+
 
 @dataclass(frozen=True)
 class BackendFrame:
     """A frame the modem received.  Times are simulation seconds.  `size` is bytes on air, `distance`
     (m), `prop_time` (s) and `velocity` (m/s, positive = moving apart) the link at transmission time,
-    when the backend knows them.  `hint` is what the sender's emulator said about the frame (e.g.
-    `im:ack`, `burst`), when it was sent through an emulator of the same process."""
+    when the backend knows them.  `msg` is the kind of message the sender chose (None: the sender did not
+    say, e.g. an application on the bus)."""
 
     src: int
     dst: int
@@ -46,7 +84,7 @@ class BackendFrame:
     distance: float | None = None
     prop_time: float | None = None
     velocity: float | None = None
-    hint: str | None = None
+    msg: Message | None = None
 
 
 @dataclass(frozen=True)
@@ -70,7 +108,7 @@ class ModemBackend(Protocol):
     on_frame: list[FrameCallback]
     on_status: list[StatusCallback]
 
-    def send(self, dst: int, data: bytes, tag: Any = None, hint: str | None = None) -> None:
+    def send(self, dst: int, data: bytes, tag: Any = None, msg: Message | None = None) -> None:
         """Hand a frame to the modem (thread-safe, never blocks).  Its fate comes through on_status."""
 
     def now(self) -> float:

@@ -15,14 +15,23 @@ How frames map onto the device (`mode`):
   `FAILED` -> `failed`.
 * `auto` (default): instant messages up to 64 bytes, burst above.
 
-The modem answers one command at a time, and refuses a new instant message (`BUSY ...`) while the
-previous one is being delivered, so the driver keeps its own FIFO: it sends the next command only when
-the previous one is answered, and the next instant message only when the previous one's delivery
-report came (or `ack_timeout` passed).  Queries (`query()`) go ahead of queued frames.  A `BUSY` or
-`ERROR` answer to a send ends that frame `dropped` (reason `busy` / `error`, the device's text in the
-status detail).  Received RECV / RECVIM / RECVPBM become frames with rssi, integrity and the rest in
-`meta`.  Anything malformed the device says is reported through `on_event` (kind protocol-error) and
-counted; the parser resynchronises on the next line.
+The modem answers one command at a time, refuses a new instant message (`BUSY ...`) while the previous
+one is on air, and cancels an acknowledged one whose acknowledgement has not come yet when another
+message is sent (CANCELEDIM), so the driver keeps its own FIFO: it sends the next command only when the
+previous one is answered, and the next instant message only when the previous acknowledged one's
+delivery report came (or `ack_timeout` passed).  A frame the modem refuses as busy is not dropped: the
+driver asks `AT?DI` every `busy_poll` seconds until the modem says EMPTY (or FAILED / EXPIRED), as DESERT
+does, and sends it again; after `busy_retries` polls without the modem getting free it reports it
+`failed` (reason `busy`).  Queries (`query()`) go ahead of queued frames.  An `ERROR` answer to a send
+ends that frame `dropped` (reason `error`, the device's text in the status detail).  Answers may carry
+the `[*]` prefix of a deferred setting.  Received RECV / RECVIM / RECVIMS / RECVPBM become frames with
+rssi, integrity and the rest in `meta`; RECVPROBE, `%...` and the other notifications are asynchronous
+events, never the answer to a query.  Anything malformed the device says is reported through `on_event`
+(kind protocol-error) and counted; the parser resynchronises on the next line.
+
+`link_mode="data"`: after connecting the driver sends `ATO` and speaks data mode (commands as `+++AT...`,
+answers and notifications framed `+++AT<cmd>:<len>:`); burst data the modem passes through outside any
+framing becomes frames with `src` 0 (data mode does not say who sent it) and `meta["kind"] == "data"`.
 """
 
 from __future__ import annotations
@@ -42,6 +51,7 @@ class _Query:
     command: str
     future: Any = None                 # concurrent.futures.Future for query(); None for init commands
     result: list[str] = field(default_factory=list)
+    poll: bool = False                 # AT?DI while a frame waits after BUSY
 
 
 class EvoLogicsDriver(Driver):
@@ -50,9 +60,12 @@ class EvoLogicsDriver(Driver):
     def __init__(self, host: str, port: int = 9200, modem_id: str | None = None, *, mode: str = "auto",
                  im_ack: bool = True, init: tuple[str, ...] = ("?AL",), eol: str = "\n",
                  reply_timeout: float = 5.0, ack_timeout: float = 30.0, connect_timeout: float = 5.0,
-                 max_bursts: int = 4, **kw: Any) -> None:
+                 max_bursts: int = 4, busy_poll: float = 0.2, busy_retries: int = 10, link_mode: str = "command",
+                 **kw: Any) -> None:
         if mode not in ("auto", "im", "burst"):
             raise ValueError(f"mode must be auto, im or burst, got {mode!r}")
+        if link_mode not in ("command", "data"):
+            raise ValueError(f"link_mode must be command or data, got {link_mode!r}")
         kw.setdefault("max_payload", at.BURST_MAX if mode != "im" else at.IM_MAX)
         super().__init__(modem_id or f"evologics-{host}:{port}", **kw)
         self.host = host
@@ -63,6 +76,9 @@ class EvoLogicsDriver(Driver):
         self.ack_timeout = ack_timeout
         self.connect_timeout = connect_timeout
         self.max_bursts = max_bursts
+        self.busy_poll = busy_poll
+        self.busy_retries = busy_retries
+        self.link_mode = link_mode
         self.codec = at.DriverCodec(eol=eol, reply_timeout=reply_timeout)
         self.settings: dict[str, str] = {}
         """Last answer to each query (e.g. '?AL' -> '1')."""
@@ -70,6 +86,8 @@ class EvoLogicsDriver(Driver):
         self._cmd: TxRequest | _Query | None = None      # what the modem owes a synchronous answer for
         self._im: TxRequest | None = None                # instant message awaiting its delivery report
         self._bursts: deque[TxRequest] = deque()         # burst data awaiting DELIVERED / FAILED
+        self._busy: TxRequest | None = None              # refused as busy: resent once AT?DI says EMPTY
+        self._busy_next = 0.0
 
     # -- public ---------------------------------------------------------------------------------------
     def query(self, command: str, timeout: float = 10.0) -> str:
@@ -93,6 +111,9 @@ class EvoLogicsDriver(Driver):
         return proto
 
     def _on_open(self) -> None:
+        self.codec.mode = "command"
+        if self.link_mode == "data":
+            self.write(self.codec.command("O"))          # no answer; the codec parses data mode from now on
         for cmd in reversed(self.init):
             self._queries.appendleft(_Query(cmd))
 
@@ -117,6 +138,11 @@ class EvoLogicsDriver(Driver):
             q = self._queries.popleft()
             self._cmd = q
             self.write(self.codec.command(q.command, now))
+            return
+        if self._busy is not None:
+            if now >= self._busy_next:
+                self._cmd = _Query("?DI", poll=True)
+                self.write(self.codec.command("?DI", now))
             return
         if not self.queue:
             return
@@ -147,6 +173,8 @@ class EvoLogicsDriver(Driver):
     def _on_tick(self, now: float) -> None:
         for ev in self.codec.expire(now):
             self._handle(ev)
+        if self._busy is not None and self._cmd is None and now >= self._busy_next:
+            self._pump()
         if self._im is not None and now - self._im.extra.get("t_ok", now) > self.ack_timeout:
             req, self._im = self._im, None
             self.emit_status(req, "failed", "timeout", f"no delivery report in {self.ack_timeout:g} s")
@@ -166,6 +194,9 @@ class EvoLogicsDriver(Driver):
         if self._im is not None:
             req, self._im = self._im, None
             self.emit_status(req, "failed", "disconnected", "link lost before the delivery report")
+        if self._busy is not None:                       # sent again once the link is back
+            self.queue.appendleft(self._busy)
+            self._busy = None
         while self._bursts:
             self.emit_status(self._bursts.popleft(), "failed", "disconnected", "link lost")
         for q in [q for q in self._queries if q.future is None]:
@@ -173,8 +204,10 @@ class EvoLogicsDriver(Driver):
 
     def _info(self) -> dict[str, Any]:
         return {"host": self.host, "port": self.port, "mode": self.mode, "settings": dict(self.settings),
+                "link_mode": self.link_mode,
                 "awaiting": {"answer": self._describe(self._cmd),
                              "im_report": self._im.dst if self._im else None,
+                             "busy_retry": self._busy.dst if self._busy else None,
                              "burst_reports": [r.dst for r in self._bursts]}}
 
     # -- protocol events ----------------------------------------------------------------------------
@@ -196,7 +229,29 @@ class EvoLogicsDriver(Driver):
         if q.future is not None and not q.future.done():
             q.future.set_exception(RuntimeError(f"{self.modem_id}: {q.command}: {why}"))
 
+    def _polled(self, text: str | None) -> None:
+        """The answer to AT?DI while a frame waits after BUSY (None: the poll failed)."""
+        req = self._busy
+        if req is None:
+            return
+        polls = req.extra.get("polls", 0) + 1
+        req.extra["polls"] = polls
+        if text is not None and text.startswith("DELIVERING"):
+            if polls >= self.busy_retries:
+                self._busy = None
+                self.emit_status(req, "failed", "busy", f"the modem stayed busy ({text}) through {polls} "
+                                 f"AT?DI polls {self.busy_poll:g} s apart")
+            else:
+                self._busy_next = time.monotonic() + self.busy_poll
+            return
+        self._busy = None                                # EMPTY, FAILED, EXPIRED: free again
+        self.counters["busy_resent"] += 1
+        self.queue.appendleft(req)
+
     def _answer(self, q: _Query, text: str) -> None:
+        if q.poll:
+            self._polled(text)
+            return
         self.settings[at.request_name(q.command)] = text
         if at.request_name(q.command) == "?AL":
             try:
@@ -242,7 +297,14 @@ class EvoLogicsDriver(Driver):
                 return
             self._cmd = None
             if isinstance(cmd, _Query):
+                if cmd.poll:
+                    self._polled(None)
                 self._fail_query(cmd, f"{word} {ev.reason}")
+            elif word == "BUSY":
+                self.counters["busy"] += 1
+                self._busy = cmd
+                self._busy_next = time.monotonic() + self.busy_poll
+                self.emit_event("busy", f"BUSY {ev.reason}: AT?DI every {self.busy_poll:g} s, then again")
             else:
                 self.emit_status(cmd, "dropped", word.lower(), f"{word} {ev.reason}")
         elif isinstance(ev, at.Delivered | at.Failed | at.Canceled):
@@ -251,11 +313,16 @@ class EvoLogicsDriver(Driver):
             name = ev.name if isinstance(ev, at.Notification) else f"EXPIRED{ev.kind.upper()}"
             fields = ",".join(ev.fields) if isinstance(ev, at.Notification) else str(ev.dst)
             self.emit_event("notification", f"{name},{fields}" if fields else name)
+        elif isinstance(ev, at.Data):
+            self.emit_frame(RxFrame(0, self.address if self.address is not None else at.BROADCAST, ev.data,
+                                    time.time(), None, None, {"kind": "data"}))
         elif isinstance(ev, at.ProtocolError):
             self.emit_event("protocol-error", f"{ev.kind}: {ev.detail}", ev.raw)
             if ev.kind == "timeout" and ev.request is not None and cmd is not None:
                 self._cmd = None
                 if isinstance(cmd, _Query):
+                    if cmd.poll:
+                        self._polled(None)
                     self._fail_query(cmd, "no answer")
                 else:
                     self.emit_status(cmd, "failed", "timeout", "the modem did not answer the command")

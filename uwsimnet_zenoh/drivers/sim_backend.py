@@ -30,7 +30,7 @@ from ..kernel.frame import BROADCAST, Frame
 from ..kernel.realtime import RealtimeClock
 from ..phy.modem import Modem
 from ..scene.model import Scene
-from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback
+from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, Message, StatusCallback
 
 log = logging.getLogger("uwsimnet.drivers.sim")
 
@@ -47,7 +47,6 @@ class SimWorld:
         self.tracker = DeliveryTracker()
         self.net.tracer.add(self.tracker.on_trace)
         self.backends: dict[str, SimBackend] = {}
-        self.hints: dict[tuple[int, int], str] = {}
         self._started = False
 
     # -- lifecycle ----------------------------------------------------------------------------------
@@ -131,8 +130,8 @@ class SimBackend:
     def now(self) -> float:
         return self.world.now()
 
-    def send(self, dst: int, data: bytes, tag: Any = None, hint: str | None = None) -> None:
-        self.world.call(self._send, int(dst), bytes(data), tag, hint)
+    def send(self, dst: int, data: bytes, tag: Any = None, msg: Message | None = None) -> None:
+        self.world.call(self._send, int(dst), bytes(data), tag, msg)
 
     def info(self) -> dict[str, Any]:
         m = self.modem
@@ -149,16 +148,11 @@ class SimBackend:
                 lst.remove(fn)
 
     # -- engine thread ------------------------------------------------------------------------------
-    def _send(self, dst: int, data: bytes, tag: Any, hint: str | None) -> None:
+    def _send(self, dst: int, data: bytes, tag: Any, msg: Message | None) -> None:
         m = self.modem
         self.counters["sent"] += 1
         self._refused = False
-        frame = m.send(dst, len(data), data=data, tag=tag)
-        if hint is not None:
-            hints = self.world.hints
-            hints[(m.address, frame.seq)] = hint
-            while len(hints) > 10000:
-                del hints[next(iter(hints))]
+        frame = m.send(dst, len(data), data=data, tag=tag, msg=None if msg is None else msg.to_wire())
         if dst != BROADCAST and not self._refused:        # a frame refused at once has no outcome to wait for
             self.world.tracker.watch(m.address, frame.seq, m.id,
                                      lambda ev, reason, t, dist, f=frame: self._outcome(f, ev, reason, t, dist))
@@ -192,7 +186,7 @@ class SimBackend:
         data = frame.data if frame.data is not None else bytes(frame.payload)
         bf = BackendFrame(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, frame.size,
                           sender.bitrate if sender is not None else None, dist, prop, vel,
-                          self.world.hints.get((frame.src, frame.seq)))
+                          Message.from_wire(frame.msg))
         for cb in list(self.on_frame):
             try:
                 cb(bf)

@@ -32,7 +32,7 @@ from ..bus.clock import WorldClock
 from ..errors import UwsimnetError
 from ..kernel.frame import BROADCAST
 from ..phy.framing import builder
-from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, StatusCallback
+from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, Message, StatusCallback
 
 log = logging.getLogger("uwsimnet.drivers.zenoh")
 
@@ -129,14 +129,14 @@ class ZenohBackend:
         t = self.clock.now()
         return float(self._info.get("t", 0.0)) if t is None else t
 
-    def send(self, dst: int, data: bytes, tag: Any = None, hint: str | None = None) -> None:
+    def send(self, dst: int, data: bytes, tag: Any = None, msg: Message | None = None) -> None:
         ours = next(self._next)
         with self._lock:
             self._tags[ours] = (tag, int(dst))
             while len(self._tags) > 10000:
                 self._tags.popitem(last=False)
         self.counters["sent"] += 1
-        self._pub.put(wire.encode_tx(int(dst), bytes(data), ours))
+        self._pub.put(wire.encode_tx(int(dst), bytes(data), ours, msg=None if msg is None else msg.to_wire()))
 
     def info(self) -> dict[str, Any]:
         return dict(self._info, counters=dict(self.counters))
@@ -174,7 +174,8 @@ class ZenohBackend:
         size = self._framed(len(f.data)) + int(self._info.get("header_bytes") or 0)
         # the broker's distance (older brokers: none, and link_metrics falls back to t_rx - t_tx)
         bf = BackendFrame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, size, self.bitrate,
-                          f.dist, None if f.dist is None else self.prop_time(f.dist, rx=True))
+                          f.dist, None if f.dist is None else self.prop_time(f.dist, rx=True),
+                          msg=Message.from_wire(f.msg))
         for cb in list(self.on_frame):
             try:
                 cb(bf)

@@ -128,13 +128,26 @@ class DriverHost:
         seq, self._seq = self._seq, self._seq + 1
         t = self.now()
         with contextlib.suppress(Exception):
-            self._rx_pub.put(wire.encode_rx(int(f.src), int(f.dst), bytes(f.data), seq, t, t))
+            self._rx_pub.put(wire.encode_rx(int(f.src), int(f.dst), bytes(f.data), seq, t, t, msg=_rx_msg(f.meta)))
 
     def _on_status(self, st: TxStatus) -> None:
         self.counters["status"] += 1
         tag = st.tag if isinstance(st.tag, int) and not isinstance(st.tag, bool) else None
         with contextlib.suppress(Exception):
             self._st_pub.put(wire.encode_status(tag, st.event, st.reason, self.now()))
+
+
+def _rx_msg(meta: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The kind of message a real modem said it received (driver meta: kind, flag, pid) as the wire's rx
+    fields; None if it did not say.  Burst data passed through in data mode counts as burst."""
+    if not meta:
+        return None
+    kind = "burst" if meta.get("kind") == "data" else meta.get("kind")
+    m = {"kind": kind, "flag": meta.get("flag") if kind == "im" else None, "pid": meta.get("pid")}
+    try:
+        return wire.check_msg(m)
+    except ValueError:
+        return None
 
 
 def _plain(x: Any) -> Any:

@@ -14,15 +14,16 @@ class Frame:
     `size` is what goes on air (payload + device header + MAC overhead): it sets the transmission time,
     the loss probability and the FIFO occupancy.  `payload` is what the application handed over.
     `info` carries MAC header fields (announced durations, ack numbers) that the simulator does not model
-    as bytes one by one.
+    as bytes one by one.  `msg` is what the sender's device said about the message (the wire's tx `kind`,
+    `flag`, `ts`, `pid`): opaque to the simulator, handed to the receivers as it came.
     """
 
     __slots__ = ("src", "dst", "seq", "size", "payload", "data", "flow", "kind", "t_enq", "tag", "dev",
-                 "info", "t_tx", "tries")
+                 "info", "t_tx", "tries", "msg")
 
     def __init__(self, src: int, dst: int, seq: int, size: int, payload: int, *, data: bytes | None = None,
                  flow: str | None = None, kind: str = "data", t_enq: float = 0.0, tag: Any = None,
-                 dev: str = "", info: dict | None = None) -> None:
+                 dev: str = "", info: dict | None = None, msg: dict | None = None) -> None:
         self.src = src
         self.dst = dst
         self.seq = seq
@@ -35,6 +36,7 @@ class Frame:
         self.tag = tag
         self.dev = dev
         self.info = info
+        self.msg = msg
         self.t_tx = -1.0
         self.tries = 0
 

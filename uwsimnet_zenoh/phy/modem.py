@@ -129,14 +129,15 @@ class Modem:
 
     # -- the application side ------------------------------------------------------------------
     def send(self, dst: int, payload: int, *, data: bytes | None = None, flow: str | None = None,
-             tag: Any = None, refuse: str | None = None) -> Frame:
+             tag: Any = None, refuse: str | None = None, msg: dict | None = None) -> Frame:
         """An application (or flow) offers `payload` bytes for `dst`; the frame ends traced either way.
 
         `refuse`: the caller knows the modem cannot take the frame (the bus: its vehicle has no pose
-        yet); it is traced as enq then dropped at the transmitter with that reason."""
+        yet); it is traced as enq then dropped at the transmitter with that reason.  `msg`: the sender
+        device's description of the message (Frame.msg), carried to the receivers untouched."""
         now = self.sched.now
         frame = Frame(self.address, dst, self._seq, self.on_air_size(payload), payload, data=data,
-                      flow=flow, t_enq=now, tag=tag, dev=self.id)
+                      flow=flow, t_enq=now, tag=tag, dev=self.id, msg=msg)
         self._seq += 1
         self.counters["enq"] += 1
         direct = not self.fifo and self.mac.ready()

@@ -89,15 +89,16 @@ class Modem:
 
     # -- sending ---------------------------------------------------------------------------------
     def send(self, dst: int, data: bytes | bytearray | str, *, tag: int | None = None,
-             flow: str | None = None) -> int:
+             flow: str | None = None, msg: dict | None = None) -> int:
         """Hand `data` to the modem for address `dst` (255 = broadcast); returns the frame's tag
         (yours, or a fresh one) which its status events carry.  `flow` names the scene flow the frame
-        belongs to (trace attribution), if any."""
+        belongs to (trace attribution), if any.  `msg`: the kind of message, e.g. `{"kind": "im", "flag":
+        "ack"}` (docs/gli-protocol.md: kind, flag, ts, pid), passed to the receivers' `Frame.msg`."""
         if isinstance(data, str):
             data = data.encode()
         if tag is None:
             tag = next(_tags)
-        self._tx.put(encode_tx(dst, data, tag, flow))
+        self._tx.put(encode_tx(dst, data, tag, flow, msg))
         return tag
 
     # -- receiving -------------------------------------------------------------------------------

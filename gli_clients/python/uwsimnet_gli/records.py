@@ -19,7 +19,8 @@ class Frame:
     simulation times of its first bit on air (`t_tx`) and of its delivery (`t_rx`).  `modem` is the
     dccommsId that received it; `wall` the time.time() at which this process got it.  `dist` is the
     distance (m) between transmitter and receiver when the frame left, as the simulator's channel had it
-    (None from a broker that does not send it)."""
+    (None from a broker that does not send it).  `msg` is the kind of message the sender chose (`kind`,
+    `flag`, `ts`, `pid`; None if it did not say)."""
 
     src: int
     dst: int
@@ -30,6 +31,7 @@ class Frame:
     modem: str = ""
     wall: float = field(default=0.0, compare=False)
     dist: float | None = None
+    msg: dict | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -52,7 +54,7 @@ def read_rx(raw: bytes, modem: str = "", wall: float = 0.0) -> Frame | None:
         f = wire.decode_rx(raw)
     except wire.CodecError:
         return None
-    return Frame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, modem, wall, f.dist)
+    return Frame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, modem, wall, f.dist, f.msg)
 
 
 def read_status(raw: bytes, modem: str = "") -> Status | None:

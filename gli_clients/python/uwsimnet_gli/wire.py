@@ -282,6 +282,41 @@ def _vec(m: dict, key: str, n: int, required: bool) -> tuple[float, ...] | None:
     return tuple(float(x) for x in v)
 
 
+# -- the kind of message (tx and rx) ----------------------------------------------------------
+MSG_KINDS = ("burst", "im", "ims", "pbm")
+"""`kind` of a message, as an acoustic modem with several services (EvoLogics S2C) tells them apart:
+burst data, instant message, synchronous instant message, piggy-back message."""
+IM_FLAGS = ("ack", "noack", "force")
+MSG_KEYS = ("kind", "flag", "ts", "pid")
+
+
+def check_msg(msg: Any) -> dict[str, Any] | None:
+    """The message-kind fields of a tx/rx map (`kind`, `flag`, `ts`, `pid`), checked; None if `kind` is
+    absent.  ValueError says what is wrong: `flag` only with kind im, `ts` (µs, 0..2^32-1) only with ims,
+    `pid` 0..7."""
+    if msg is None or msg.get("kind") is None:
+        if msg and any(msg.get(k) is not None for k in MSG_KEYS):
+            raise ValueError("'flag', 'ts' and 'pid' need a 'kind'")
+        return None
+    kind, flag, ts, pid = (msg.get(k) for k in MSG_KEYS)
+    if kind not in MSG_KINDS:
+        raise ValueError(f"'kind' must be one of {MSG_KINDS}")
+    if flag is not None and (kind != "im" or flag not in IM_FLAGS):
+        raise ValueError(f"'flag' is for kind im only, one of {IM_FLAGS}")
+    if ts is not None and (kind != "ims" or not _is_int(ts) or not 0 <= ts < 1 << 32):
+        raise ValueError("'ts' is for kind ims only, an integer 0..2^32-1 (µs)")
+    if pid is not None and (not _is_int(pid) or not 0 <= pid <= 7):
+        raise ValueError("'pid' must be an integer 0..7")
+    return {k: v for k, v in zip(MSG_KEYS, (kind, flag, ts, pid), strict=True) if v is not None}
+
+
+def _msg_fields(m: dict, what: str, tag: int | None = None) -> dict[str, Any] | None:
+    try:
+        return check_msg(m)
+    except ValueError as e:
+        raise CodecError("invalid", f"{what}: {e}", tag) from None
+
+
 # -- tx: app -> modem ---------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
 class TxRequest:
@@ -289,9 +324,13 @@ class TxRequest:
     data: bytes
     tag: int | None = None
     flow: str | None = None
+    msg: dict[str, Any] | None = None
+    """The kind of message the sender chose (`kind`, and `flag` / `ts` / `pid` when set); None: not said."""
 
 
-def encode_tx(dst: int, data: bytes, tag: int | None = None, flow: str | None = None) -> bytes:
+def encode_tx(dst: int, data: bytes, tag: int | None = None, flow: str | None = None,
+              msg: dict[str, Any] | None = None) -> bytes:
+    """`msg`: {"kind": burst|im|ims|pbm, "flag": ack|noack|force (im), "ts": µs (ims), "pid": 0..7}."""
     if not _is_int(dst) or not 0 <= dst <= MAX_ADDRESS:
         raise ValueError(f"dst must be an address 0..{MAX_ADDRESS}, got {dst!r}")
     m: dict[str, Any] = {"dst": dst, "data": bytes(data)}
@@ -299,6 +338,7 @@ def encode_tx(dst: int, data: bytes, tag: int | None = None, flow: str | None = 
         m["tag"] = tag
     if flow is not None:
         m["flow"] = flow
+    m.update(check_msg(msg) or {})
     return pack(m)
 
 
@@ -316,16 +356,18 @@ def decode_tx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> TxRequest:
     flow = m.get("flow")
     if flow is not None and not isinstance(flow, str):
         raise CodecError("invalid", "'flow' must be a string or nil", tag)
-    return TxRequest(dst, data, tag, flow)
+    return TxRequest(dst, data, tag, flow, _msg_fields(m, "a tx message", tag))
 
 
 # -- rx: modem -> app ---------------------------------------------------------------------------
 def encode_rx(src: int, dst: int, data: bytes, seq: int, t_tx: float, t_rx: float,
-              dist: float | None = None) -> bytes:
+              dist: float | None = None, msg: dict[str, Any] | None = None) -> bytes:
+    """`msg`: the kind of message as the sender's tx gave it (see encode_tx), passed on unchanged."""
     m: dict[str, Any] = {"src": src, "dst": dst, "data": data, "seq": seq, "t_tx": float(t_tx),
                          "t_rx": float(t_rx)}
     if dist is not None:
         m["dist"] = float(dist)
+    m.update(check_msg(msg) or {})
     return pack(m)
 
 
@@ -339,6 +381,8 @@ class RxFrame:
     t_rx: float
     dist: float | None = None
     """m between transmitter and receiver at transmission start (the trace's rx `dist`); None: not sent."""
+    msg: dict[str, Any] | None = None
+    """The kind of message the sender chose (its tx `kind`, `flag`, `ts`, `pid`); None: it did not say."""
 
 
 def decode_rx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> RxFrame:
@@ -355,7 +399,7 @@ def decode_rx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> RxFrame:
     if dist is not None and not (_is_num(dist) and dist >= 0):
         raise CodecError("invalid", "'dist' must be a number >= 0 or absent")
     return RxFrame(m["src"], m["dst"], m["data"], m["seq"], float(m["t_tx"]), float(m["t_rx"]),
-                   None if dist is None else float(dist))
+                   None if dist is None else float(dist), _msg_fields(m, "an rx message"))
 
 
 # -- status: modem -> app -----------------------------------------------------------------------

@@ -29,16 +29,23 @@ Wire format (command mode), from the public drivers of the device (EvoLogics `ev
   `RECV*` payloads are binary and may contain `\\r\\n`: the length field says how many bytes follow
   the header, then `\\r\\n` must follow.  The extended form `RECV*,p<pid>,<len>,...` and
   `AT*SEND*,p<pid>,<len>,...` (network protocol id) is accepted on both sides.
+
+Data mode (vendor AT manual 1.7, section 4.2): after `ATO` every host byte is burst data except
+`+++AT<command><eol>`; the modem frames answers `+++AT<command>:<len>:<answer>CRLF` and notifications
+`+++AT:<len>:<line>CRLF`, and passes received burst data through as it is.  `+++ATC` returns to command mode.
 """
 
 
 from .device import (
     CRLF,
+    TIES_MAX,
     BadCommand,
     Command,
     DeviceCodec,
     DeviceEvent,
+    RawData,
     SendCommand,
+    bes,
     block,
     busy,
     canceled,
@@ -53,8 +60,10 @@ from .device import (
     recvpbm,
 )
 from .events import (
+    BES_HEAD,
     BROADCAST,
     BURST_MAX,
+    DEFERRED,
     IM_FLAGS,
     IM_MAX,
     MAX_LINE,
@@ -62,6 +71,7 @@ from .events import (
     RECV_MAX,
     Busy,
     Canceled,
+    Data,
     Delivered,
     DriverEvent,
     Error,
@@ -77,7 +87,8 @@ from .events import (
 from .host import DriverCodec
 
 __all__ = [
-    "BROADCAST", "BURST_MAX", "BadCommand", "Busy", "CRLF", "Canceled", "Command", "Delivered", "DeviceCodec",
+    "BES_HEAD", "BROADCAST", "BURST_MAX", "BadCommand", "Busy", "CRLF", "Canceled", "Command", "DEFERRED", "Data",
+    "Delivered", "DeviceCodec", "RawData", "TIES_MAX", "bes",
     "DeviceEvent", "DriverCodec", "DriverEvent", "Error", "Expired", "Failed", "IM_FLAGS", "IM_MAX", "MAX_LINE",
     "MULTILINE", "Notification", "Ok", "ProtocolError", "RECV_MAX", "Received", "Reply", "SendCommand", "block",
     "busy", "canceled", "delivered", "error", "failed", "line", "notification", "ok", "recv", "recvim", "recvpbm",

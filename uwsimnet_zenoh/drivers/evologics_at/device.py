@@ -3,6 +3,7 @@ the modem's replies and notifications."""
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass
 
@@ -20,6 +21,8 @@ class Command:
     name: str
     arg: str
     raw: bytes
+    ties: bool = False
+    """Came as `+++AT...` in data mode: the answer goes back as `+++AT<name>:<len>:<answer>`."""
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,7 @@ class SendCommand:
     flag: str | None = None  # *SENDIM: ack | noack | force
     timestamp_us: int | None = None
     pid: int | None = None
+    ties: bool = False
 
 
 @dataclass(frozen=True)
@@ -42,9 +46,19 @@ class BadCommand:
     detail: str
     raw: bytes
     reply: str = "ERROR WRONG FORMAT"
+    ties: bool = False
 
 
-DeviceEvent = Command | SendCommand | BadCommand
+@dataclass(frozen=True)
+class RawData:
+    """Data mode: host bytes that are not an escape sequence, i.e. burst data for the Remote Address."""
+
+    data: bytes
+
+
+DeviceEvent = Command | SendCommand | BadCommand | RawData
+TIES_MAX = 1054
+"""Longest AT command, characters (manual 1.7 section 5.1.1); a longer +++AT... is burst data."""
 _EOL = (b"\r", b"\n")
 
 
@@ -55,9 +69,18 @@ class DeviceCodec:
     of data follow (they may contain end-of-line bytes); the end of line must follow them, otherwise
     the command is refused (`BadCommand('length')`) and the parser resumes after the first end of
     line that follows the data's start.  `expire(now)` refuses a command whose data stopped coming.
+
+    Data mode (`mode="data"`; `ATO` switches to it when `data_mode` is allowed, `ATC` back): host bytes are
+    burst data (`RawData`) except a time independent escape sequence `+++AT<command><eol>` (manual 1.7
+    section 4.2.2), parsed as above; a `+++AT...` that is not a command in the right format is burst data.
+    The switch happens as the `ATO`/`ATC` line is parsed, so bytes written right after it are read in the
+    new mode.
     """
 
-    def __init__(self, payload_timeout: float = 2.0, max_data: int = BURST_MAX) -> None:
+    def __init__(self, payload_timeout: float = 2.0, max_data: int = BURST_MAX, mode: str = "command",
+                 data_mode: bool = True) -> None:
+        self.mode = mode
+        self.data_mode = data_mode
         self.payload_timeout = payload_timeout
         self.max_data = max_data
         self._buf = bytearray()
@@ -80,10 +103,14 @@ class DeviceCodec:
             return []
         if now - self._partial_since <= self.payload_timeout:
             return []
-        raw = self._drop_line(self._head_end)
-        self._head_end = 0
-        out: list[DeviceEvent] = [BadCommand("timeout", f"incomplete command dropped after "
-                                             f"{self.payload_timeout:g} s: {_show(raw)}", raw)]
+        out: list[DeviceEvent] = []
+        if self.mode == "data" and not self._buf.startswith(b"+++AT*SEND"):
+            self._parse_data(out, flush=True)            # a lone '+', '++' or an unterminated +++AT...
+        else:
+            raw = self._drop_line(self._head_end)
+            self._head_end = 0
+            out.append(BadCommand("timeout", f"incomplete command dropped after {self.payload_timeout:g} s: "
+                                  f"{_show(raw)}", raw))
         self._parse(out)
         self._partial_since = now if self._buf else None
         return out
@@ -111,6 +138,10 @@ class DeviceCodec:
     def _parse(self, out: list[DeviceEvent]) -> None:
         buf = self._buf
         while buf:
+            if self.mode == "data":
+                if not self._parse_data(out):
+                    return
+                continue
             if self._skip_lf:
                 self._skip_lf = False
                 if buf[:1] == b"\n":
@@ -134,6 +165,55 @@ class DeviceCodec:
                 continue
             self._command(raw, out)
 
+    def _parse_data(self, out: list[DeviceEvent], flush: bool = False) -> bool:
+        """One step in data mode; False: wait for more bytes."""
+        buf = self._buf
+        if self._skip_lf:
+            self._skip_lf = False
+            if buf[:1] == b"\n":
+                del buf[:1]
+                return True
+        i = buf.find(b"+++")
+        if i < 0:
+            keep = 0 if flush else len(buf) - len(buf.rstrip(b"+"))
+            n = len(buf) - min(keep, 2)
+            if n:
+                out.append(RawData(bytes(buf[:n])))
+                del buf[:n]
+            return bool(n) and bool(buf)
+        if i > 0:
+            out.append(RawData(bytes(buf[:i])))
+            del buf[:i]
+            return True
+        if len(buf) < 5 and not flush and b"+++AT".startswith(bytes(buf)):
+            return False
+        if buf[3:5] != b"AT":
+            out.append(RawData(bytes(buf[:1])))
+            del buf[:1]
+            return True
+        m = _SEND_HEAD.match(buf, 3)
+        if m is not None:
+            n = len(out)
+            done = self._send(m, out)
+            out[n:] = [dataclasses.replace(ev, ties=True) for ev in out[n:]]
+            return done
+        e = self._eol_at(3)
+        if e < 0:
+            if len(buf) > TIES_MAX + 3 or flush:
+                out.append(RawData(bytes(buf[:3])))      # not a command after all: burst data
+                del buf[:3]
+                return True
+            return False
+        raw = bytes(buf[:e])
+        self._consume_eol(e)
+        n = len(out)
+        self._command(raw[3:], out)
+        if len(out) > n and isinstance(out[-1], BadCommand):
+            out[-1] = RawData(raw + b"\n")               # a TIES in wrong format is burst data (section 4.2.2)
+        elif len(out) > n:
+            out[-1] = dataclasses.replace(out[-1], ties=True)
+        return True
+
     def _command(self, raw: bytes, out: list[DeviceEvent]) -> None:
         try:
             text = raw.decode("ascii").strip()
@@ -145,9 +225,14 @@ class DeviceCodec:
             out.append(BadCommand("garbage", f"not an AT command: {text!r}", raw))
             return
         prefix, letters, arg = m.groups()
-        if not prefix and len(letters) > 1 and letters[0] in "ZIHCOASN":
+        if not prefix and len(letters) > 1 and letters[0] in "ZIHCOASND":
             letters, arg = letters[0], letters[1:] + arg   # ATZ1, ATI7, ATH0, ATC, ATO ...
-        out.append(Command(prefix + letters, text[2 + len(prefix) + len(letters):], raw))
+        name = prefix + letters
+        out.append(Command(name, text[2 + len(prefix) + len(letters):], raw))
+        if name == "O" and self.data_mode:
+            self.mode = "data"
+        elif name == "C":
+            self.mode = "command"
 
     def _send(self, m: re.Match, out: list[DeviceEvent]) -> bool:
         buf = self._buf
@@ -240,6 +325,13 @@ def error(reason: str) -> bytes:
 def block(lines: list[str]) -> bytes:
     """A multi-line answer (`AT&V`): the lines, then an empty line."""
     return b"".join(line(x) for x in lines) + CRLF
+
+
+def bes(request: str, body: bytes) -> bytes:
+    """Data mode, back escape sequence (manual 1.7 section 4.2.3): `+++AT<request>:<len>:<body>CRLF`.
+
+    `body` is the answer (or, with request "", the notification) without its final CRLF; `len` counts it."""
+    return f"+++AT{request}:{len(body)}:".encode("ascii") + bytes(body) + CRLF
 
 
 def recv(src: int, dst: int, data: bytes, bitrate: int, rssi: int, integrity: int, prop_time_us: int,

@@ -24,9 +24,15 @@ _RECV_FIELDS = {"RECV": 8, "RECVIM": 8, "RECVIMS": 8, "RECVPBM": 7}
 _RECV_HEAD = re.compile(rb"RECV(|IM|IMS|PBM),(p\d+,)?")
 _SEND_HEAD = re.compile(rb"AT\*SEND(|IM|IMS|PBM),(p\d+,)?", re.IGNORECASE)
 _SEND_FIELDS = {"*SEND": 2, "*SENDIM": 3, "*SENDIMS": 3, "*SENDPBM": 2}   # incl. length, before data
-_ASYNC = ("RECVSTART", "RECVEND,", "RECVFAILED,", "RECVSRV,", "SENDSTART,", "SENDEND,", "BITRATE,", "RADDR,",
-          "SRCLEVEL,", "PHYON", "PHYOFF", "USBL", "STATUS,", "DROPCNT,", "ECLK,", "RTO,", "DELIVERED",
-          "FAILED", "CANCELED", "EXPIRED")
+_ASYNC = ("RECVSTART", "RECVEND,", "RECVFAILED,", "RECVSRV,", "RECVPROBE,", "SENDSTART,", "SENDEND,",
+          "BITRATE,", "RADDR,", "SRCLEVEL,", "PHYON", "PHYOFF", "USBL", "STATUS,", "DROPCNT,", "ECLK,", "RTO,",
+          "DELIVERED", "FAILED", "CANCELED", "EXPIRED", "%")
+"""Line prefixes that are asynchronous notifications, never the answer to a request (evins role_at.erl
+answer_split: RECVPROBE, %<key>,<params> and the rest)."""
+DEFERRED = "[*]"
+"""Prefix of an answer whose setting applies once the acoustic link is idle (manual 1.7 section 5.1.3)."""
+BES_HEAD = re.compile(rb"\+\+\+AT([^:\r\n]{0,32}):(\d{1,5}):")
+"""A back escape sequence in data mode: +++AT<request>:<length>:<body>CRLF (manual 1.7 section 4.2.3)."""
 _ASYNC_ERRORS = ("EFAULT", "OVERLOAD")
 _CMD = re.compile(r"AT([?!@&*]?)([A-Z]+)(.*)", re.DOTALL)
 
@@ -123,6 +129,13 @@ class Notification:
 
 
 @dataclass(frozen=True)
+class Data:
+    """Burst data the modem passed through in data mode: the bytes outside any `+++AT` framing."""
+
+    data: bytes
+
+
+@dataclass(frozen=True)
 class ProtocolError:
     """Output that breaks the protocol; the parser has skipped it.
 
@@ -139,7 +152,7 @@ class ProtocolError:
 
 
 DriverEvent = Ok | Reply | Busy | Error | Received | Delivered | Failed | Canceled | Expired | Notification \
-    | ProtocolError
+    | Data | ProtocolError
 
 
 def _int(s: bytes | str) -> int:

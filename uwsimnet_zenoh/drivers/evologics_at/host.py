@@ -11,7 +11,9 @@ from .events import (
     _ASYNC_ERRORS,
     _RECV_FIELDS,
     _RECV_HEAD,
+    BES_HEAD,
     BURST_MAX,
+    DEFERRED,
     IM_FLAGS,
     IM_MAX,
     MAX_LINE,
@@ -19,6 +21,7 @@ from .events import (
     RECV_MAX,
     Busy,
     Canceled,
+    Data,
     Delivered,
     DriverEvent,
     Error,
@@ -58,9 +61,21 @@ class DriverCodec:
 
     `eol`: `\\n` for TCP, `\\r` for a serial line.  `reply_timeout`: seconds an answer may take.
     `payload_timeout`: seconds the rest of a RECV payload may take once its header arrived.
+
+    Data mode (`mode="data"`, or after `command("O")`): commands go out as `+++AT<cmd>` (the time independent
+    escape sequence), the modem's answers and notifications come back as `+++AT<req>:<len>:<body>` and
+    `+++AT:<len>:<body>` and are parsed like command-mode lines; every other byte is burst data (`Data`).
+    `command("C")` returns to command mode (answered `OK`).  A `[*]` prefix (deferred setting) is accepted
+    on answers: `[*]OK` is `Ok`, `[*]3` is `Reply('3')`.
     """
 
-    def __init__(self, eol: str = "\n", reply_timeout: float = 5.0, payload_timeout: float = 2.0) -> None:
+    def __init__(self, eol: str = "\n", reply_timeout: float = 5.0, payload_timeout: float = 2.0,
+                 mode: str = "command") -> None:
+        if mode not in ("command", "data"):
+            raise ValueError(f"mode must be command or data, got {mode!r}")
+        self.mode = mode
+        self._dbuf = bytearray()     # data mode: bytes not yet known to be burst data or a BES
+        self._dsince: float | None = None
         self.eol = eol.encode()
         self.reply_timeout = reply_timeout
         self.payload_timeout = payload_timeout
@@ -81,8 +96,24 @@ class DriverCodec:
         c = cmd.strip()
         if c[:2].upper() != "AT":
             c = "AT" + c
-        self._push(request_name(c), now)
-        return c.encode("ascii") + self.eol
+        wire = self._prefix() + c.encode("ascii") + self.eol
+        req = request_name(c)
+        if req == "O":               # ATO: no answer (manual 1.7 section 5.3.2); data mode from now on
+            self.mode = "data"
+            return wire
+        if req == "C":               # ATC: answered OK once the modem is in command mode
+            self.mode = "command"
+        self._push(req, now)
+        return wire
+
+    def _prefix(self) -> bytes:
+        return b"+++" if self.mode == "data" else b""
+
+    def raw(self, data: bytes) -> bytes:
+        """Data mode: burst data for the Remote Address (`AT!AR`), written as is."""
+        if self.mode != "data":
+            raise ValueError("raw burst data is only possible in data mode (send ATO first)")
+        return bytes(data)
 
     def im(self, dst: int, data: bytes, flag: str = "ack", now: float | None = None,
            pid: int | None = None) -> bytes:
@@ -105,7 +136,7 @@ class DriverCodec:
             raise ValueError(f"AT{req} carries at most {limit} bytes, got {len(data)}")
         self._push(req, now)
         p = f"p{pid}," if pid is not None else ""
-        return f"AT{req},{p}{len(data)},{mid}".encode("ascii") + data + self.eol
+        return self._prefix() + f"AT{req},{p}{len(data)},{mid}".encode("ascii") + data + self.eol
 
     def expect(self, request: str, now: float | None = None) -> None:
         """Register a request written by other means (e.g. a transcript), so its answer pairs with it."""
@@ -120,17 +151,65 @@ class DriverCodec:
         lost = [p.request for p in self._pending]
         self._pending.clear()
         self._buf.clear()
+        self._dbuf.clear()
+        self._dsince = None
         self._partial_since = None
         self._head_end = 0
         return lost
 
     # -- parsing the modem's output ---------------------------------------------------------------
     def feed(self, data: bytes | bytearray | memoryview, now: float | None = None) -> list[DriverEvent]:
-        self._buf += data
         out: list[DriverEvent] = []
+        if self.mode == "data":
+            self._dbuf += data
+            self._data(out)
+            self._dsince = now if self._dbuf else None
+        else:
+            self._buf += data
         self._parse(out)
         self._partial_since = now if self._buf else None     # a stall is counted from the last byte
         return out
+
+    def _data(self, out: list[DriverEvent], flush: bool = False) -> None:
+        """Data mode: cut BES frames out of the stream; their bodies go to the line parser, the rest is data."""
+        buf = self._dbuf
+        esc = b"+++AT"
+        while buf:
+            i = buf.find(esc)
+            if i < 0:
+                keep = 0 if flush else next((k for k in (4, 3, 2, 1) if buf.endswith(esc[:k])), 0)
+                n = len(buf) - keep
+                if n:
+                    out.append(Data(bytes(buf[:n])))
+                    del buf[:n]
+                return
+            if i > 0:
+                out.append(Data(bytes(buf[:i])))
+                del buf[:i]
+                continue
+            m = BES_HEAD.match(buf)
+            if m is None:
+                if not flush and len(buf) < 48 and re.fullmatch(rb"\+\+\+AT[^:\r\n]{0,32}(:\d{0,5})?", buf):
+                    return                                   # the head is still arriving
+                out.append(Data(bytes(buf[:1])))             # '+' of burst data, not an escape
+                del buf[:1]
+                continue
+            end = m.end() + int(m.group(2))
+            if len(buf) < end + 2:
+                if flush:
+                    raw = bytes(buf)
+                    buf.clear()
+                    self._err(out, "timeout", f"incomplete +++AT frame dropped: {_show(raw)}", raw)
+                return
+            if buf[end:end + 2] != b"\r\n":
+                raw = bytes(buf[:m.end()])
+                del buf[:m.end()]
+                self._err(out, "length", f"+++AT frame of {m.group(2).decode()} bytes not followed by CRLF: "
+                          f"{_show(raw)}", raw)
+                continue
+            self._buf += buf[m.end():end + 2]                # body + CRLF: a command-mode line
+            del buf[:end + 2]
+            self._parse(out)                                 # now, to keep its order with the data
 
     def expire(self, now: float) -> list[DriverEvent]:
         out: list[DriverEvent] = []
@@ -144,6 +223,13 @@ class DriverCodec:
                           request=p.request)
                 if self._pending:
                     self._pending[0].since = now
+        if self._dbuf:
+            if self._dsince is None:
+                self._dsince = now
+            elif now - self._dsince > self.payload_timeout:
+                self._data(out, flush=True)
+                self._parse(out)
+                self._dsince = None
         if self._buf:
             if self._partial_since is None:
                 self._partial_since = now
@@ -173,6 +259,14 @@ class DriverCodec:
     def _parse(self, out: list[DriverEvent]) -> None:
         buf = self._buf
         while buf:
+            b = BES_HEAD.match(buf) if buf[:1] == b"+" else None
+            if b is not None:                # a data-mode frame written just before ATC took effect
+                end = b.end() + int(b.group(2))
+                if len(buf) < end + 2:
+                    return
+                if buf[end:end + 2] == b"\r\n":
+                    del buf[:b.end()]
+                    continue
             m = _RECV_HEAD.match(buf)
             if m is not None:
                 if not self._recv(m, out):
@@ -293,6 +387,8 @@ class DriverCodec:
         if p.request in MULTILINE:
             p.lines.append(text)
             return
+        if text.startswith(DEFERRED):
+            text = text[len(DEFERRED):]
         if _expects_ok(p.request):
             if text == "OK":
                 self._pending.popleft()
