@@ -66,8 +66,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             return run_realtime(scene, args)
         finally:
             if viewer is not None:
-                viewer.terminate()
-                viewer.wait(10)
+                view.stop_viewer(viewer)
     trace = args.trace or scene.tracing.log_to_file
     if args.view and not trace:                     # the page replays the run's trace after it
         with tempfile.TemporaryDirectory() as tmp:

@@ -159,6 +159,15 @@ def start_beside_run(args: argparse.Namespace, world: str, endpoint: str) -> sub
     return subprocess.Popen(argv, stdin=subprocess.DEVNULL)
 
 
+def stop_viewer(p: subprocess.Popen) -> None:
+    p.terminate()
+    try:
+        p.wait(10)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        p.wait(5)
+
+
 def view_after_run(args: argparse.Namespace, trace: str) -> None:
     """`uwsimnet run --view` (virtual clock): the replay of the run's trace, until Ctrl-C."""
     from ..view.server import ViewServer

@@ -56,7 +56,9 @@ class ViewServer:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._pending = False
         self.clients = 0
+        self._sockets: set[web.WebSocketResponse] = set()
         self.app = web.Application()
+        self.app.on_shutdown.append(self._close_sockets)
         self.app.router.add_get("/", self._index)
         self.app.router.add_get("/api/doc", self._api_doc)
         self.app.router.add_get("/ws", self._ws)
@@ -81,7 +83,7 @@ class ViewServer:
         self._loop = asyncio.get_running_loop()
         if self.live is not None:
             self.live.listeners.append(self._on_change)
-        runner = web.AppRunner(self.app, access_log=None)
+        runner = web.AppRunner(self.app, access_log=None, shutdown_timeout=2.0)
         await runner.setup()
         site = web.TCPSite(runner, host, port, reuse_address=False)
         try:
@@ -92,6 +94,11 @@ class ViewServer:
         server = site._server                                 # noqa: SLF001 - the only way to the bound port
         sock = server.sockets[0] if server is not None and server.sockets else None
         return runner, (sock.getsockname()[1] if sock is not None else port)
+
+    async def _close_sockets(self, _app: web.Application) -> None:
+        for ws in list(self._sockets):
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(ws.close(code=1001, message=b"server shutdown"), 2.0)
 
     # -- handlers ----------------------------------------------------------------------------------
     async def _index(self, _req: web.Request) -> web.StreamResponse:
@@ -121,6 +128,7 @@ class ViewServer:
             await ws.close()
             return ws
         self.clients += 1
+        self._sockets.add(ws)
         wake = asyncio.Event()
         self._wakes.add(wake)
         reader = asyncio.ensure_future(self._drain(ws))
@@ -146,6 +154,7 @@ class ViewServer:
             pass
         finally:
             self.clients -= 1
+            self._sockets.discard(ws)
             self._wakes.discard(wake)
             reader.cancel()
             with contextlib.suppress(Exception):

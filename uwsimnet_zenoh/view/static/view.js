@@ -34,7 +34,7 @@
   }
   function depthColor(z) {
     const [lo, hi] = S.zr;
-    const f = hi > lo ? (z - lo) / (hi - lo) : 0.5;
+    const f = hi > lo ? (hi - z) / (hi - lo) : 0.5;  // z up: the highest (shallowest) light, the lowest dark
     const stops = [[246, 246, 122], [55, 200, 200], [42, 62, 168]];
     const g = Math.max(0, Math.min(1, f)) * 2, i = Math.min(1, Math.floor(g)), k = g - i;
     return `rgb(${stops[i].map((x, j) => Math.round(x + (stops[i + 1][j] - x) * k)).join(",")})`;
@@ -172,10 +172,19 @@
     for (let k = i; k >= 0 && S.frames[k].t >= from; k--) out.push(S.frames[k]);
     return out;
   }
+  function expected(f) {                            // receivers that will trace an outcome of this frame
+    const n = Object.keys(f.outcomes).length;
+    if (S.mode !== "live") return n;                 // a replayed trace is complete: what it has is all
+    if (f.dst !== 255) return 1;                     // unicast: its addressee only
+    const others = Object.entries(S.doc.devices).filter(([id, d]) => id !== f.dev && d.rx_channel === f.ch).length;
+    return Math.max(others, n);
+  }
   function frameStatus(f, T) {                      // {state: air|done, outcomes at T}
     const outs = Object.entries(f.outcomes).filter(([, o]) => o.t <= T).map(([dev, o]) => [dev, o.outcome]);
-    const n = Object.keys(f.outcomes).length;
-    const state = n > 0 && outs.length === n ? "done" : "air";
+    const n = expected(f);
+    const last = Math.max(f.t, ...Object.values(f.outcomes).map((o) => o.t));
+    const state = n > 0 && outs.length >= n ? "done"
+      : (S.mode === "live" && outs.length > 0 && T > last + 10 * S.maxDelay + HOLD) ? "done" : "air";
     return { state, outs };
   }
 
