@@ -20,6 +20,7 @@ import subprocess
 import sys
 import threading
 import time
+import urllib.error
 import urllib.request
 from collections import Counter
 from pathlib import Path
@@ -416,3 +417,69 @@ def test_page_shows_a_live_run(browser, live, tmp_path):
         time.sleep(0.2)
     assert dict(f["outs"]) == want and set(want) == {"bravo-m", "charlie-m"}
     assert want["charlie-m"] == "range"
+
+
+# -- a secured deployment: the page as a visitor (read-only: traces) ------------------------------
+@pytest.fixture(scope="module")
+def secured(tmp_path_factory):
+    """Routers with TLS, user/password and the deployment's ACL (tests/test_security.py's Deployment); the
+    broker logs in as `brk`, the page as the visitor `vis`, an app as `app` on the other router."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed")
+    pytest.importorskip("uwsimnet_gli")
+    from test_security import Deployment
+
+    d = tmp_path_factory.mktemp("secured")
+    dep = Deployment(d)
+    dep.start()
+    started: list[Proc] = []
+    try:
+        scene = d / "live.xml"
+        scene.write_text(LIVE_SCENE)
+        cfg = {n: dep.out / dep.inventory.identities[n].host / "clients" / f"{n}.json5" for n in ("brk", "vis", "app")}
+        run = Proc([*UWSIMNET, "run", str(scene), "--world", "w", "--zenoh-config", str(cfg["brk"]),
+                    "--trace", str(d / "trace.jsonl")], d / "run.log")
+        started.append(run)
+        run.wait_for("running for")
+        view = Proc([*UWSIMNET, "view", "--zenoh-config", str(cfg["vis"]), "--world", "w", "--scene", str(scene),
+                     "--port", "0"], d / "view.log")
+        started.append(view)
+        url = view.wait_for("http://").split("uwsimnet view: ")[1].split()[0]
+        yield {"url": url, "app": cfg["app"], "trace": d / "trace.jsonl"}
+    finally:
+        for p in reversed(started):
+            assert p.stop() in (0, 130), p.text()
+            assert "Traceback" not in p.text(), p.text()
+        dep.stop()
+
+
+def test_visitor_sees_traced_frames_but_may_not_pause(secured):
+    from uwsimnet_gli import World, load_config
+
+    url = secured["url"]
+    doc = wait_doc(url, lambda d: len(d["devices"]) == 3)
+    assert doc["control"] is False and set(doc["vehicles"]) == {"alpha", "bravo", "charlie"}
+    req = urllib.request.Request(url + "api/control/pause", method="POST")
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(req, timeout=10)
+    assert e.value.code == 403
+    with World("w", config=load_config(str(secured["app"]))) as w:
+        m = w.modem("alpha-m")
+        assert m.wait_kind(timeout=WAIT) == "sim"
+        tag = m.send(255, b"seen by a visitor")
+        st = m.wait_status(tag, timeout=WAIT)
+        assert st is not None and st.event == "sent", st
+
+    def has_frame(d: dict) -> bool:
+        return any(f["dev"] == "alpha-m" and f["seq"] == st.seq and len(f["outcomes"]) == 2 for f in d["frames"])
+
+    doc = wait_doc(url, has_frame)
+    f = next(f for f in doc["frames"] if f["dev"] == "alpha-m" and f["seq"] == st.seq)
+    deadline = time.monotonic() + WAIT
+    want: dict[str, str] = {}
+    while time.monotonic() < deadline and len(want) < 2:
+        with contextlib.suppress(StopIteration, json.JSONDecodeError, FileNotFoundError):
+            want = outcomes_in_trace(secured["trace"], "alpha-m", st.seq)
+        time.sleep(0.2)
+    assert {k: o["outcome"] for k, o in f["outcomes"].items()} == want
+    assert doc["clock"]["t"] >= f["t"]                    # time as the trace tells it (no clock for visitors)

@@ -70,6 +70,7 @@ class LiveSource:
         self.state = state
         self._stop = threading.Event()
         self._drivers: dict[str, set[str]] = {}
+        self._drivers_lock = threading.Lock()
         k = self.keys
         self._subs = [
             session.declare_subscriber(k.pose_all, self._on_pose),
@@ -77,7 +78,6 @@ class LiveSource:
             session.declare_subscriber(k.clock, self._on_clock),
             session.liveliness().declare_subscriber(k.drivers(), self._on_driver, history=True),
         ]
-        self.refresh()
         self._thread = threading.Thread(target=self._refresher, name="view-refresh", daemon=True)
         self._thread.start()
 
@@ -120,12 +120,14 @@ class LiveSource:
         k = wire.parse(str(sample.key_expr))
         if k is None or k.leaf != "driver" or k.name is None:
             return
-        kinds = self._drivers.setdefault(k.name, set())
-        if sample.kind == zenoh.SampleKind.PUT:
-            kinds.add(str(k.driver))
-        else:
-            kinds.discard(str(k.driver))
-        self.state.set_kind(k.name, "real" if "real" in kinds else "sim" if "sim" in kinds else None)
+        with self._drivers_lock:
+            kinds = self._drivers.setdefault(k.name, set())
+            if sample.kind == zenoh.SampleKind.PUT:
+                kinds.add(str(k.driver))
+            else:
+                kinds.discard(str(k.driver))
+            kind = "real" if "real" in kinds else "sim" if "sim" in kinds else None
+        self.state.set_kind(k.name, kind)
 
     # -- queries -----------------------------------------------------------------------------------
     def _get(self, key: str, timeout: float = 2.0, payload: bytes | None = None) -> list[dict[str, Any]]:
@@ -146,7 +148,7 @@ class LiveSource:
         """Modems and vehicles from control `state` (whether control answers says if it is allowed) and
         `modem/*/info` (FIFO capacity, range)."""
         states = [s for s in self._get(self.keys.control("state")) if s.get("ok")]
-        self.state.control = bool(states)
+        self.state.set_control(bool(states))
         for s in states:
             self.state.merge_state(s)
         modems = {}
@@ -161,6 +163,7 @@ class LiveSource:
             self.state.merge_state({"modems": modems})
 
     def _refresher(self) -> None:
+        self.refresh()
         while not self._stop.wait(REFRESH_S):
             self.refresh()
 

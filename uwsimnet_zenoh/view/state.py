@@ -10,6 +10,7 @@ The page (static/view.js) gets one document, then (live) a stream of updates:
               {"type": "clock", "clock": {t, paused, speed, epoch}}
               {"type": "devices", "devices": {...}, "vehicles": {...}}
               {"type": "kind", "dev", "kind"}                      sim | real | null (nobody serves it)
+              {"type": "control", "control": bool}                 whether pause/resume may be asked
 
 `events` carry each device's cumulative counters after the event and its FIFO occupancy (bytes, carried
 forward), so the page finds the state of a device at any time by a binary search, and a bounded live
@@ -38,6 +39,8 @@ LIVE_FRAMES = 4000
 LIVE_EVENTS = 20000
 LIVE_POSES = 3000
 """Live history kept per kind (frames, events, pose samples per vehicle): older entries are forgotten."""
+CLOCK_FROM_TRACE_S = 0.05
+"""Without clock samples, a trace record this much later than the time shown moves it."""
 
 
 def _f(x: Any) -> float | None:
@@ -165,6 +168,7 @@ class LiveState:
         self.frame_order: deque[int] = deque()
         self.events: deque[list[Any]] = deque(maxlen=LIVE_EVENTS)
         self.clock: dict[str, Any] = {"t": 0.0, "paused": False, "speed": 1.0, "epoch": None}
+        self.clock_seen = False
         self.control = False
         self.kinds: dict[str, str | None] = {}
         self._tracker = AirTracker(keep=False)
@@ -191,6 +195,10 @@ class LiveState:
         if rec.get("ev") not in ("enq", "tx", "rx", "drop"):
             return
         with self.lock:
+            if not self.clock_seen and rec["t"] > self.clock["t"] + CLOCK_FROM_TRACE_S:
+                # no clock samples (a visitor may read traces only): time as the trace tells it
+                self.clock = {"t": float(rec["t"]), "paused": False, "speed": 1.0, "epoch": None, "source": "trace"}
+                self._push({"type": "clock", "clock": self.clock})
             row = self._counters.row(rec)
             self.events.append(row)
             self._push({"type": "event", "e": row})
@@ -232,9 +240,19 @@ class LiveState:
             t = m.get("t")
             if not isinstance(t, int | float) or not math.isfinite(t):
                 return
+            self.clock_seen = True
             self.clock = {"t": float(t), "paused": bool(m.get("paused")), "speed": float(m.get("speed") or 1.0),
                           "epoch": m.get("epoch") if isinstance(m.get("epoch"), int | float) else None}
             self._push({"type": "clock", "clock": self.clock})
+        self._notify()
+
+    def set_control(self, allowed: bool) -> None:
+        """Whether the world's control API answers this client (pause/resume on the page)."""
+        with self.lock:
+            if allowed == self.control:
+                return
+            self.control = allowed
+            self._push({"type": "control", "control": allowed})
         self._notify()
 
     def set_kind(self, dev: str, kind: str | None) -> None:

@@ -124,6 +124,7 @@
       if (a.length === 1 && Object.values(d.poses).reduce((n, x) => n + x.length, 0) === 1) fitBounds();
       grow(u.s.slice(1));
     } else if (u.type === "clock") setClock(u.clock);
+    else if (u.type === "control") { d.control = u.control; ctlButtons(); }
     else if (u.type === "kind") { if (d.devices[u.dev]) d.devices[u.dev].kind = u.kind; buildModems(); }
     else if (u.type === "devices") {
       d.devices = u.devices;
