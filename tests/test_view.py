@@ -324,7 +324,7 @@ def test_page_replays_a_trace(browser, replay_trace, tmp_path):
 
 LIVE_SCENE = f"""<?xml version="1.0"?>
 <UWSimScene>
-  <simulation><seed>3</seed><clock>realtime</clock><world>{WORLD}</world><duration>120</duration></simulation>
+  <simulation><seed>3</seed><clock>realtime</clock><world>{WORLD}</world><duration>600</duration></simulation>
   <CustomCommsChannel><id>0</id><propTimeIncPerMeter>0.6667</propTimeIncPerMeter></CustomCommsChannel>
   {"".join(f'''<vehicle><name>{v}</name><position>{x} {y} {z}</position><poseRate>5</poseRate>
     <CustomCommsDevice><dccommsId>{v}-m</dccommsId><mac>{a}</mac><txChannelId>0</txChannelId>
