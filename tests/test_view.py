@@ -483,3 +483,10 @@ def test_visitor_sees_traced_frames_but_may_not_pause(secured):
         time.sleep(0.2)
     assert {k: o["outcome"] for k, o in f["outcomes"].items()} == want
     assert doc["clock"]["t"] >= f["t"]                    # time as the trace tells it (no clock for visitors)
+
+
+def test_documents_are_json_even_with_non_finite_numbers():
+    from uwsimnet_zenoh.view.server import _json_bytes
+
+    doc = {"frames": [{"outcomes": {"b": {"dist": float("nan")}}}], "t": float("inf"), "flow": "NaN"}
+    assert json.loads(_json_bytes(doc)) == {"frames": [{"outcomes": {"b": {"dist": None}}}], "t": None, "flow": "NaN"}

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import math
 import signal
 from collections.abc import Callable
 from pathlib import Path
@@ -34,12 +35,22 @@ SEND_TIMEOUT_S = 10.0
 _dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=str).encode
 
 
+def _finite(obj: Any) -> Any:
+    """The same data with every NaN or infinity as None (JSON has neither)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    return obj
+
+
 def _json_bytes(obj: Any) -> bytes:
     try:
         return _dumps(obj).encode()
-    except ValueError:                      # NaN/inf somewhere: as null
-        return json.dumps(obj, separators=(",", ":"), default=str).replace("NaN", "null") \
-            .replace("-Infinity", "null").replace("Infinity", "null").encode()
+    except ValueError:                      # NaN/inf somewhere (e.g. a live record): as null
+        return _dumps(_finite(obj)).encode()
 
 
 class ViewServer:
