@@ -401,6 +401,7 @@ def test_page_shows_a_live_run(browser, live, tmp_path):
         # pause and resume through the control API, from the page's buttons
         browser.click("#pause")
         browser.wait("return !document.getElementById('paused').hidden", what="paused")
+        time.sleep(0.3)                                       # clock samples sent before the pause are in
         t_paused = browser.js("return uwsimnetView.T")
         time.sleep(0.5)
         assert browser.js("return uwsimnetView.T") == t_paused

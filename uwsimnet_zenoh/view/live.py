@@ -174,9 +174,7 @@ class LiveSource:
         replies = self._get(self.keys.control(op), payload=wire.pack({}))
         for r in replies:
             if r.get("ok"):
-                if isinstance(r.get("t"), int | float):
-                    self.state.set_clock({**self.state.clock, "t": r["t"], "paused": op == "pause"})
-                return r
+                return r            # the broker publishes a clock sample at every pause/resume: the one truth
         if not replies:
             return {"ok": False, "error": f"control/{op}: no reply (not allowed, or no simulator)"}
         return {"ok": False, "error": str(replies[0].get("error") or "refused")}
