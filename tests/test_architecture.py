@@ -26,7 +26,7 @@ LAYERS: dict[str, int] = {
     "bus": 8, "deploy": 8,
     "drivers": 9,
     "bridges": 10,
-    "app": 11,
+    "app": 11, "view": 11,            # view: the web page (live Zenoh client + trace replay), beside app
     "experiments": 12,
     "cli": 13,                        # the one command: dispatches to experiments too (DESIGN had them siblings)
 }

@@ -17,7 +17,10 @@ from pathlib import Path
 from ..app import ros2
 from ..app.virtual import load_scene_file, print_summary, run_virtual, show_metrics
 from ..errors import UserError, UwsimnetError
-from . import deploy, drivers, experiment, sweep
+from . import deploy, drivers, experiment, sweep, view
+
+DEFAULT_VIEW_ROUTER = "tcp/127.0.0.1:7447"
+"""Where the page of `run --view` connects when the run says nothing (the run's default listen endpoint)."""
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
@@ -57,12 +60,26 @@ def cmd_run(args: argparse.Namespace) -> int:
     if clock == "realtime":
         from ..app.realtime import run_realtime  # noqa: PLC0415 - zenoh only when needed
 
-        return run_realtime(scene, args)
+        viewer = view.start_beside_run(args, scene.world, (args.connect or args.listen or [DEFAULT_VIEW_ROUTER])[0]) \
+            if args.view else None
+        try:
+            return run_realtime(scene, args)
+        finally:
+            if viewer is not None:
+                view.stop_viewer(viewer)
     trace = args.trace or scene.tracing.log_to_file
+    if args.view and not trace:                     # the page replays the run's trace after it
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "trace.jsonl"
+            print_summary(str(path), run_virtual(scene, seed=args.seed, duration=args.duration, trace_path=path))
+            view.view_after_run(args, str(path))
+        return 0
     if trace:
         net = run_virtual(scene, seed=args.seed, duration=args.duration, trace_path=Path(trace))
         print_summary(trace, net)
         print(f"trace: {trace}")
+        if args.view:
+            view.view_after_run(args, trace)
         return 0
     with tempfile.TemporaryDirectory() as tmp:     # the summary is computed from a trace all the same
         path = Path(tmp) / "trace.jsonl"
@@ -125,7 +142,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--external-flows", metavar="NAMES",
                    help="flows (comma-separated, or 'all') run by external apps, not by the simulator (realtime)")
     ros2.add_arguments(r)
-    r.set_defaults(fn=cmd_run)
+    r.add_argument("--view", action="store_true",
+                   help="the web page of the run (uwsimnet view): live beside a realtime run, else the replay"
+                        " of its trace once it ends")
+    r.add_argument("--view-port", type=int, default=view.DEFAULT_PORT, help="port of that page")
+    r.set_defaults(fn=cmd_run, open=False)
 
     ro = sub.add_parser("router", help="a standalone Zenoh router for this machine (other machines connect)")
     ro.add_argument("--listen", action="append",
@@ -149,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("-o", "--out", default="figures")
     pl.set_defaults(fn=cmd_plot)
 
-    for add_commands in (drivers.add_commands, experiment.add_commands, sweep.add_commands, deploy.add_commands):
+    for add_commands in (drivers.add_commands, experiment.add_commands, sweep.add_commands, deploy.add_commands,
+                         view.add_commands):
         add_commands(sub)
     return p
 

@@ -1,0 +1,493 @@
+"""`uwsimnet view`: the document (sans-IO), the server's bounded live hand-off, bad input, and the page in a
+real headless browser (Debian's chromium + chromium-driver; skipped with the reason when absent) on a
+replayed trace and on a live run (`uwsimnet run --view` with its own Zenoh client beside the broker).
+
+Screenshots: every browser test saves one in its tmp folder; with UWSIMNET_VIEW_SHOTS=DIR also in DIR
+(docs/view.md's are made so: UWSIMNET_VIEW_SHOTS=docs/figures pytest tests/test_view.py).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import contextlib
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.error
+import urllib.request
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from uwsimnet_zenoh.analysis import read_trace
+from uwsimnet_zenoh.analysis.airframes import air_frames
+from uwsimnet_zenoh.app.virtual import load_scene_file, run_virtual
+from uwsimnet_zenoh.view.state import LiveState, replay_document
+
+ROOT = Path(__file__).resolve().parents[1]
+UWSIMNET = [sys.executable, "-m", "uwsimnet_zenoh.cli"]
+REPLAY_SCENE = ROOT / "scenes" / "paper" / "twinbot-sfama.xml"
+WORLD = "viewtest"
+WAIT = 30.0
+
+sys.path.insert(0, str(Path(__file__).parent))
+import view_webdriver  # noqa: E402
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def replay_trace(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("view") / "twinbot.jsonl"
+    run_virtual(load_scene_file(str(REPLAY_SCENE)), seed=1, duration=30.0, trace_path=path, progress=False)
+    return path
+
+
+# -- the document ---------------------------------------------------------------------------------
+def test_replay_document_holds_every_frame_and_the_counters_of_the_trace(replay_trace):
+    scene = load_scene_file(str(REPLAY_SCENE))
+    meta, events = read_trace(replay_trace)
+    doc = replay_document(meta, events, scene)
+    recs = [r for r in map(json.loads, replay_trace.read_text().splitlines()) if r["ev"] != "meta"]
+    assert set(doc["vehicles"]) == {v.name for v in scene.vehicles}
+    assert set(doc["devices"]) == {d.dccomms_id for _, d in scene.devices()}
+    assert doc["t1"] == 30.0 and doc["positions"]
+    assert doc["frames"] == [f.to_dict() for f in air_frames(recs)]
+    assert len(doc["frames"]) == sum(r["ev"] == "tx" for r in recs)
+    counts = Counter((r["dev"], r["ev"]) for r in recs)
+    last = {row[1]: row for row in doc["events"]}              # each device's last row: its totals
+    for dev, row in last.items():
+        assert row[5:9] == [counts[dev, e] for e in ("enq", "tx", "rx", "drop")]
+    for dev, d in doc["devices"].items():                      # PER curves from the scene's loss models
+        assert d["per"] and all(0.0 <= p <= 1.0 for _, p in d["per"]), dev
+    for v in scene.vehicles:                                   # scripted poses: the waypoints themselves
+        want = [[w.t, w.x, w.y, w.z] for w in v.trajectory] or [[0.0, *v.position]]
+        assert doc["poses"][v.name] == want
+
+
+def test_replay_document_without_the_scene_places_the_meta_devices():
+    meta = {"ev": "meta", "devices": {"a": {"address": 1, "vehicle": "va", "tx_channel": 0, "rx_channel": 0},
+                                      "b": {"address": 2, "vehicle": "vb", "tx_channel": 0, "rx_channel": 0}}}
+    ev = [{"t": 1.0, "ev": "tx", "ch": 0, "dev": "a", "src": 1, "dst": 2, "seq": 0, "size": 10, "flow": None,
+           "kind": "data"},
+          {"t": 1.5, "ev": "drop", "ch": 0, "dev": "b", "src": 1, "dst": 2, "seq": 0, "size": 10, "flow": None,
+           "kind": "data", "reason": "col", "dist": 3.0}]
+    doc = replay_document(meta, iter(ev))
+    assert not doc["positions"] and set(doc["vehicles"]) == {"va", "vb"}
+    assert doc["frames"][0]["outcomes"] == {"b": {"outcome": "col", "t": 1.5, "dist": 3.0}}
+
+
+def test_live_state_gives_a_snapshot_to_a_consumer_that_fell_behind():
+    st = LiveState("w", log_size=10)
+    seq0, _ = st.snapshot()
+    for i in range(5):
+        st.set_clock({"t": float(i)})
+    seq, ups = st.since(seq0)
+    assert seq == seq0 + 5 and [u["clock"]["t"] for u in ups] == [0, 1, 2, 3, 4]
+    for i in range(20):
+        st.set_clock({"t": float(i)})
+    assert st.since(seq) is None                       # those updates are gone: take a snapshot
+    seq2, doc = st.snapshot()
+    assert doc["clock"]["t"] == 19.0 and st.since(seq2) == (seq2, [])
+    assert len(st.log) == 10
+
+
+def _rec(i: int) -> dict:
+    return {"t": i * 1e-3, "ev": "tx", "ch": 0, "dev": "a", "src": 1, "dst": 2, "seq": i, "size": 20,
+            "flow": None, "kind": "data", "fifo": 0}
+
+
+def _ws_handshake(port: int, rcvbuf: int | None = None) -> socket.socket:
+    s = socket.socket()
+    if rcvbuf:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+    s.connect(("127.0.0.1", port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    s.sendall(f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+              f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
+    return s
+
+
+def test_a_stuck_or_closed_browser_never_holds_up_the_feed():
+    """The live hand-off: Zenoh callbacks (here a thread) feed LiveState while one WebSocket client never reads
+    and another closes at once; the feed finishes, the log stays bounded, a reading client gets everything."""
+    from aiohttp import ClientSession
+
+    from uwsimnet_zenoh.view.server import ViewServer
+
+    n = 30000
+    st = LiveState("w", log_size=5000)
+    server = ViewServer(live=st)
+
+    async def main() -> None:
+        runner, port = await server.start("127.0.0.1", 0)
+        try:
+            stuck = _ws_handshake(port, rcvbuf=4096)                 # never reads a byte
+            closed = _ws_handshake(port)
+            await asyncio.sleep(0.2)
+            closed.close()                                           # a browser tab closed
+            async with ClientSession() as http, http.ws_connect(f"http://127.0.0.1:{port}/ws") as ws:
+                first = json.loads(await ws.receive_bytes())
+                assert first["type"] == "snapshot"
+                feeder = threading.Thread(target=lambda: [st.trace(_rec(i)) for i in range(n)])
+                feeder.start()
+                while feeder.is_alive():
+                    await asyncio.sleep(0.05)
+                feeder.join()
+                assert len(st.log) == 5000
+                last = None
+                deadline = time.monotonic() + WAIT
+                while last != n - 1 and time.monotonic() < deadline:
+                    m = json.loads(await asyncio.wait_for(ws.receive_bytes(), WAIT))
+                    if m["type"] == "snapshot":
+                        frames = m["doc"]["frames"]
+                        last = frames[-1]["seq"] if frames else last
+                    else:
+                        seqs = [u["f"]["seq"] for u in m["updates"] if u["type"] == "frame"]
+                        last = seqs[-1] if seqs else last
+                assert last == n - 1
+            stuck.close()
+            deadline = time.monotonic() + WAIT
+            while server.clients and time.monotonic() < deadline:
+                await asyncio.sleep(0.1)
+            assert server.clients == 0
+        finally:
+            await runner.cleanup()
+
+    asyncio.run(main())
+
+
+# -- bad input: one line, exit 2 -------------------------------------------------------------------
+def _one_line_exit_2(argv: list[str], timeout: float = 60) -> str:
+    r = subprocess.run([*UWSIMNET, *argv], capture_output=True, text=True, cwd=ROOT, timeout=timeout)
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
+    return r.stderr.strip()
+
+
+def test_view_of_something_that_is_not_a_trace(tmp_path):
+    (tmp_path / "a.txt").write_text("not json at all\n")
+    (tmp_path / "b.json").write_text('{"name": "a JSON file, not a trace"}\n')
+    (tmp_path / "c.jsonl").write_text("")
+    (tmp_path / "d.bin").write_bytes(bytes(range(256)) * 4)
+    for name in ("a.txt", "b.json", "c.jsonl", "d.bin", "missing.jsonl"):
+        msg = _one_line_exit_2(["view", str(tmp_path / name), "--port", "0"])
+        assert name in msg
+
+
+def test_view_on_a_port_in_use(replay_trace):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        msg = _one_line_exit_2(["view", str(replay_trace), "--port", str(port)])
+    assert f"127.0.0.1:{port}" in msg
+
+
+def test_view_of_a_router_that_refuses():
+    port = free_port()                                  # nobody listens there: the connection is refused
+    msg = _one_line_exit_2(["view", "--connect", f"tcp/127.0.0.1:{port}", "--world", "w", "--port", "0"])
+    assert msg.startswith("uwsimnet view:")
+
+
+# -- the page in a real browser --------------------------------------------------------------------
+class Proc:
+    def __init__(self, argv: list[str], log: Path) -> None:
+        self.log = log
+        self.fh = open(log, "w")                        # noqa: SIM115 - closed in stop()
+        self.p = subprocess.Popen(argv, cwd=ROOT, stdout=self.fh, stderr=subprocess.STDOUT,
+                                  stdin=subprocess.DEVNULL, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+
+    def text(self) -> str:
+        return self.log.read_text()
+
+    def wait_for(self, text: str, timeout: float = WAIT) -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            out = self.text()
+            if text in out:
+                return out
+            if self.p.poll() is not None:
+                break
+            time.sleep(0.1)
+        raise AssertionError(f"no {text!r} in the output:\n{self.text()}")
+
+    def stop(self) -> int:
+        if self.p.poll() is None:
+            self.p.send_signal(signal.SIGINT)
+            try:
+                self.p.wait(20)
+            except subprocess.TimeoutExpired:
+                self.p.kill()
+                self.p.wait(5)
+        self.fh.close()
+        return self.p.returncode
+
+
+def get_json(url: str) -> dict:
+    with urllib.request.urlopen(url, timeout=10) as r:
+        return json.loads(r.read())
+
+
+def wait_doc(url: str, pred, timeout: float = WAIT) -> dict:
+    deadline = time.monotonic() + timeout
+    doc = None
+    while time.monotonic() < deadline:
+        with contextlib.suppress(OSError):
+            doc = get_json(url + "api/doc")
+            if pred(doc):
+                return doc
+        time.sleep(0.2)
+    raise AssertionError(f"{url}: document not as expected within {timeout} s: {doc and list(doc)}")
+
+
+def shot(browser: view_webdriver.Browser, tmp: Path, name: str) -> None:
+    browser.screenshot(tmp / name)
+    assert (tmp / name).stat().st_size > 10000
+    dest = os.environ.get("UWSIMNET_VIEW_SHOTS")
+    if dest:
+        Path(dest).mkdir(parents=True, exist_ok=True)
+        shutil.copy(tmp / name, Path(dest) / name)
+
+
+needs_browser = pytest.mark.skipif(view_webdriver.unavailable() is not None,
+                                   reason=str(view_webdriver.unavailable()))
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if view_webdriver.unavailable():
+        pytest.skip(view_webdriver.unavailable())
+    with view_webdriver.Browser() as b:
+        yield b
+
+
+def outcomes_in_trace(path: Path, dev: str, seq: int, kind: str = "data") -> dict[str, str]:
+    recs = [r for r in map(json.loads, path.read_text().splitlines()) if r["ev"] != "meta"]
+    tx = next(r for r in recs if r["ev"] == "tx" and r["dev"] == dev and r["seq"] == seq and r["kind"] == kind)
+    return {r["dev"]: "rx" if r["ev"] == "rx" else r["reason"] for r in recs
+            if r["ev"] in ("rx", "drop") and r["dev"] != dev and r["seq"] == seq and r["src"] == tx["src"]
+            and r["ch"] == tx["ch"] and r["kind"] == kind and r["t"] >= tx["t"]}
+
+
+@needs_browser
+def test_page_replays_a_trace(browser, replay_trace, tmp_path):
+    scene = load_scene_file(str(REPLAY_SCENE))
+    view = Proc([*UWSIMNET, "view", str(replay_trace), "--scene", str(REPLAY_SCENE), "--port", "0"],
+                tmp_path / "view.log")
+    try:
+        url = view.wait_for("http://").split("uwsimnet view: ")[1].split()[0]
+        browser.get(url)
+        browser.wait("return window.uwsimnetView && uwsimnetView.ready", what="page ready")
+        assert browser.js("return [uwsimnetView.mode, uwsimnetView.vehicles(), uwsimnetView.modems()]") == \
+            ["replay", len(scene.vehicles), len(list(scene.devices()))]
+        assert browser.js("return document.querySelectorAll('#modems tbody tr').length") == len(list(scene.devices()))
+        # the slider: a click in its middle moves simulation time to about half the run
+        browser.click("#slider")
+        t = browser.wait("return uwsimnetView.T > 0 && uwsimnetView.T")
+        assert 13.0 < t < 17.0
+        assert browser.wait("return document.getElementById('clock').textContent") == f"t = {t:.3f} s"
+        # a data frame of the trace: on air just after its tx, then its outcome as in the trace
+        recs = [r for r in map(json.loads, replay_trace.read_text().splitlines()) if r["ev"] == "tx"]
+        tx = next(r for r in recs if r["kind"] == "data" and r["t"] > 10 and r["dev"] == "leader-rf")
+        want = outcomes_in_trace(replay_trace, tx["dev"], tx["seq"])
+        browser.js(f"uwsimnetView.setTime({tx['t'] + 1e-6})")
+        f = browser.wait(f"return uwsimnetView.frame('{tx['dev']}', {tx['seq']}, 'data')")
+        assert f["state"] == "air" and f["outs"] == []
+        sel = f"#frames li[data-dev=\"{tx['dev']}\"][data-seq=\"{tx['seq']}\"][data-kind=\"data\"]"
+        li = browser.wait(f"return document.querySelector('{sel}')?.dataset.state")
+        assert li == "air"
+        browser.js(f"uwsimnetView.setTime({tx['t'] + 2.0})")
+        f = browser.wait(f"return uwsimnetView.frame('{tx['dev']}', {tx['seq']}, 'data')")
+        assert f["state"] == "done" and dict(f["outs"]) == want
+        # play at 10x: time moves by itself
+        browser.js("uwsimnetView.setTime(0); uwsimnetView.play(10)")
+        browser.wait("return uwsimnetView.T > 2", what="playing moves time")
+        browser.js(f"uwsimnetView.setTime({tx['t'] + 0.05})")
+        time.sleep(0.3)
+        shot(browser, tmp_path, "view-replay.png")
+    finally:
+        assert view.stop() == 0, view.text()
+
+
+LIVE_SCENE = f"""<?xml version="1.0"?>
+<UWSimScene>
+  <simulation><seed>3</seed><clock>realtime</clock><world>{WORLD}</world><duration>600</duration></simulation>
+  <CustomCommsChannel><id>0</id><propTimeIncPerMeter>0.6667</propTimeIncPerMeter></CustomCommsChannel>
+  {"".join(f'''<vehicle><name>{v}</name><position>{x} {y} {z}</position><poseRate>5</poseRate>
+    <CustomCommsDevice><dccommsId>{v}-m</dccommsId><mac>{a}</mac><txChannelId>0</txChannelId>
+      <rxChannelId>0</rxChannelId><bitrate>2000</bitrate><txFifoSize>2000</txFifoSize><maxDistance>900</maxDistance>
+      <rateErrorModel><errorUnit>packet</errorUnit><errorRateExpr>min(1, max(0, (m - 300) / 400))</errorRateExpr>
+      </rateErrorModel></CustomCommsDevice></vehicle>'''
+          for v, a, (x, y, z) in (("alpha", 1, (0, 0, -5)), ("bravo", 2, (450, 0, -20)),
+                                  ("charlie", 3, (0, 1000, -40))))}
+</UWSimScene>"""
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    """`uwsimnet run --view` of a realtime scene: the broker and, beside it, the page as its own Zenoh client."""
+    pytest.importorskip("uwsimnet_gli")
+    d = tmp_path_factory.mktemp("live")
+    scene = d / "live.xml"
+    scene.write_text(LIVE_SCENE)
+    zport, vport = free_port(), free_port()
+    endpoint = f"tcp/127.0.0.1:{zport}"
+    run = Proc([*UWSIMNET, "run", str(scene), "--listen", endpoint, "--trace", str(d / "trace.jsonl"),
+                "--view", "--view-port", str(vport)], d / "run.log")
+    try:
+        url = run.wait_for(f"uwsimnet view: http://127.0.0.1:{vport}/") and f"http://127.0.0.1:{vport}/"
+        wait_doc(url, lambda doc: len(doc["devices"]) == 3 and all(v["kind"] == "sim" for v in doc["devices"].values()))
+        yield {"url": url, "endpoint": endpoint, "trace": d / "trace.jsonl", "run": run, "dir": d}
+    finally:
+        rc = run.stop()
+        assert rc == 0, run.text()
+        assert "Traceback" not in run.text(), run.text()
+
+
+def test_live_document_from_a_second_viewer_without_the_scene(live, tmp_path):
+    """`uwsimnet view --connect --world` alone (what a visitor runs): modems, kinds and poses from the wire."""
+    view = Proc([*UWSIMNET, "view", "--connect", live["endpoint"], "--world", WORLD, "--port", "0"],
+                tmp_path / "view.log")
+    try:
+        url = view.wait_for("http://").split("uwsimnet view: ")[1].split()[0]
+        doc = wait_doc(url, lambda d: len(d["devices"]) == 3 and all(len(d["poses"].get(v, [])) >= 2
+                                                                      for v in ("alpha", "bravo", "charlie")))
+        assert doc["mode"] == "live" and doc["control"] is True
+        assert {k: (v["vehicle"], v["address"], v["kind"], v["fifo_capacity"]) for k, v in doc["devices"].items()} == \
+            {"alpha-m": ("alpha", 1, "sim", 2000), "bravo-m": ("bravo", 2, "sim", 2000),
+             "charlie-m": ("charlie", 3, "sim", 2000)}
+        assert doc["poses"]["bravo"][-1][1:] == [450.0, 0.0, -20.0]
+    finally:
+        assert view.stop() == 0, view.text()
+
+
+@needs_browser
+def test_page_shows_a_live_run(browser, live, tmp_path):
+    from uwsimnet_gli import World
+
+    browser.get(live["url"])
+    browser.wait("return window.uwsimnetView && uwsimnetView.ready && uwsimnetView.modems() === 3",
+                 what="live page with 3 modems")
+    assert browser.js("return [uwsimnetView.mode, uwsimnetView.vehicles()]") == ["live", 3]
+    assert browser.js("return uwsimnetView.kinds()") == {"alpha-m": "sim", "bravo-m": "sim", "charlie-m": "sim"}
+    t0 = browser.wait("return uwsimnetView.T > 0 && uwsimnetView.T", what="the clock runs")
+    browser.wait(f"return uwsimnetView.T > {t0} + 0.3", what="the clock moves")
+    with World(WORLD, connect=live["endpoint"]) as w:
+        m = w.modem("alpha-m")
+        assert m.wait_kind(timeout=10) == "sim"
+        tag = m.send(255, b"hello view")                      # broadcast: bravo (450 m) and charlie (1000 m)
+        st = m.wait_status(tag, timeout=10)
+        assert st is not None and st.event == "sent", st
+        seq = st.seq
+        f = browser.wait(f"return (f => f && f.state === 'done' && f)(uwsimnetView.frame('alpha-m', {seq}, 'data'))",
+                         what="the frame sent during the test, with its outcomes")
+        browser.wait(f"return document.querySelector('#frames li[data-dev=\"alpha-m\"][data-seq=\"{seq}\"]"
+                     "[data-state=\"done\"]')", what="the frame in the list")
+        assert browser.js("return uwsimnetView.counters('alpha-m').tx") >= 1
+        shot(browser, tmp_path, "view-live.png")
+        # pause and resume through the control API, from the page's buttons
+        browser.click("#pause")
+        browser.wait("return !document.getElementById('paused').hidden", what="paused")
+        time.sleep(0.3)                                       # clock samples sent before the pause are in
+        t_paused = browser.js("return uwsimnetView.T")
+        time.sleep(0.5)
+        assert browser.js("return uwsimnetView.T") == t_paused
+        assert w.control("state")["paused"] is True
+        browser.click("#resume")
+        browser.wait("return document.getElementById('paused').hidden", what="resumed")
+        browser.wait(f"return uwsimnetView.T > {t_paused} + 0.2", what="time moves again")
+    # the trace (written by the broker, published on the trace keys the page reads) says the same
+    deadline = time.monotonic() + WAIT
+    want = {}
+    while time.monotonic() < deadline and len(want) < 2:
+        with contextlib.suppress(StopIteration, json.JSONDecodeError):
+            want = outcomes_in_trace(live["trace"], "alpha-m", seq)
+        time.sleep(0.2)
+    assert dict(f["outs"]) == want and set(want) == {"bravo-m", "charlie-m"}
+    assert want["charlie-m"] == "range"
+
+
+# -- a secured deployment: the page as a visitor (read-only: traces) ------------------------------
+@pytest.fixture(scope="module")
+def secured(tmp_path_factory):
+    """Routers with TLS, user/password and the deployment's ACL (tests/test_security.py's Deployment); the
+    broker logs in as `brk`, the page as the visitor `vis`, an app as `app` on the other router."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed")
+    pytest.importorskip("uwsimnet_gli")
+    from test_security import Deployment
+
+    d = tmp_path_factory.mktemp("secured")
+    dep = Deployment(d)
+    dep.start()
+    started: list[Proc] = []
+    try:
+        scene = d / "live.xml"
+        scene.write_text(LIVE_SCENE)
+        cfg = {n: dep.out / dep.inventory.identities[n].host / "clients" / f"{n}.json5" for n in ("brk", "vis", "app")}
+        run = Proc([*UWSIMNET, "run", str(scene), "--world", "w", "--zenoh-config", str(cfg["brk"]),
+                    "--trace", str(d / "trace.jsonl")], d / "run.log")
+        started.append(run)
+        run.wait_for("running for")
+        view = Proc([*UWSIMNET, "view", "--zenoh-config", str(cfg["vis"]), "--world", "w", "--scene", str(scene),
+                     "--port", "0"], d / "view.log")
+        started.append(view)
+        url = view.wait_for("http://").split("uwsimnet view: ")[1].split()[0]
+        yield {"url": url, "app": cfg["app"], "trace": d / "trace.jsonl"}
+    finally:
+        for p in reversed(started):
+            assert p.stop() in (0, 130), p.text()
+            assert "Traceback" not in p.text(), p.text()
+        dep.stop()
+
+
+def test_visitor_sees_traced_frames_but_may_not_pause(secured):
+    from uwsimnet_gli import World, load_config
+
+    url = secured["url"]
+    doc = wait_doc(url, lambda d: len(d["devices"]) == 3)
+    assert doc["control"] is False and set(doc["vehicles"]) == {"alpha", "bravo", "charlie"}
+    req = urllib.request.Request(url + "api/control/pause", method="POST")
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(req, timeout=10)
+    assert e.value.code == 403
+    with World("w", config=load_config(str(secured["app"]))) as w:
+        m = w.modem("alpha-m")
+        assert m.wait_kind(timeout=WAIT) == "sim"
+        tag = m.send(255, b"seen by a visitor")
+        st = m.wait_status(tag, timeout=WAIT)
+        assert st is not None and st.event == "sent", st
+
+    def has_frame(d: dict) -> bool:
+        return any(f["dev"] == "alpha-m" and f["seq"] == st.seq and len(f["outcomes"]) == 2 for f in d["frames"])
+
+    doc = wait_doc(url, has_frame)
+    f = next(f for f in doc["frames"] if f["dev"] == "alpha-m" and f["seq"] == st.seq)
+    deadline = time.monotonic() + WAIT
+    want: dict[str, str] = {}
+    while time.monotonic() < deadline and len(want) < 2:
+        with contextlib.suppress(StopIteration, json.JSONDecodeError, FileNotFoundError):
+            want = outcomes_in_trace(secured["trace"], "alpha-m", st.seq)
+        time.sleep(0.2)
+    assert {k: o["outcome"] for k, o in f["outcomes"].items()} == want
+    assert doc["clock"]["t"] >= f["t"]                    # time as the trace tells it (no clock for visitors)
+
+
+def test_documents_are_json_even_with_non_finite_numbers():
+    from uwsimnet_zenoh.view.server import _json_bytes
+
+    doc = {"frames": [{"outcomes": {"b": {"dist": float("nan")}}}], "t": float("inf"), "flow": "NaN"}
+    assert json.loads(_json_bytes(doc)) == {"frames": [{"outcomes": {"b": {"dist": None}}}], "t": None, "flow": "NaN"}
