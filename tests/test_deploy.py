@@ -105,13 +105,18 @@ def test_acl_by_role() -> None:
     policies = {p["id"]: p for p in acl["policies"]}
     assert subjects["routers"] == {"id": "routers", "cert_common_names": ["broker", "robot1", "robot2"]}
     assert subjects["app-m1"] == {"id": "app-m1", "usernames": ["app1"], "cert_common_names": ["app1"]}
-    assert rules["app-m1/publish/in"]["key_exprs"] == ["uwsimnet/lab/modem/m1/tx", "uwsimnet/lab/pose/*"]
+    assert rules["app-m1/publish/in"]["key_exprs"] == [
+        "uwsimnet/lab/modem/m1/tx", "uwsimnet/lab/pose/*", "uwsimnet/lab/vehicle/*/cmd"]
     assert rules["app-m1/publish/in"]["flows"] == ["ingress"]
     assert rules["app-m1/publish/out"]["messages"] == ["declare_subscriber"]
+    # the app's publishers see the broker's wildcard subscribers (issue #18: modem/*/tx, pose/**)
+    assert {"uwsimnet/lab/modem/*/tx", "uwsimnet/lab/pose/**"} <= set(rules["app-m1/publish/out"]["key_exprs"])
+    assert "uwsimnet/lab/modem/*/info" in rules["app-m1/query/out2"]["key_exprs"]
+    assert rules["app-m1/query/out2"]["messages"] == ["declare_queryable"]
     assert rules["driver/token/in"]["key_exprs"] == ["uwsimnet/lab/modem/*/driver/real"]
     assert rules["broker/token/in"]["key_exprs"] == ["uwsimnet/lab/modem/*/driver/sim"]
     assert set(policies["visitor"]["rules"]) == {"visitor/subscribe/in", "visitor/subscribe/out"}
-    assert rules["visitor/subscribe/out"]["key_exprs"] == ["uwsimnet/lab/trace/**"]
+    assert rules["visitor/subscribe/out"]["key_exprs"] == ["uwsimnet/lab/trace/*"]
     # nobody but a driver may declare driver/real, nobody but the broker driver/sim
     for rid, r in rules.items():
         if "liveliness_token" in r["messages"] and r["flows"] == ["ingress"] and rid != "router-all":

@@ -23,17 +23,16 @@ from collections.abc import Iterator
 from typing import Any
 
 from ..errors import UserError
+from .zenoh_flags import add_zenoh_flags, client_session
 
-DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+WORLD_HELP = "world name (default: the only one that answers)"
 
 
 def add_commands(sub: Any) -> None:
     """Register the subcommands on `uwsimnet`'s subparsers."""
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument("--id", required=True, help="the modem's dccommsId")
-        p.add_argument("--world", help="world name (default: the only one that answers)")
-        p.add_argument("--connect", action="append", help=f"Zenoh router (default {DEFAULT_CONNECT})")
-        p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 client configuration")
+        add_zenoh_flags(p, world=WORLD_HELP)
 
     d = sub.add_parser("driver", help="serve a modem id with a real modem (HIL swap)")
     dsub = d.add_subparsers(dest="driver", required=True)
@@ -95,9 +94,7 @@ def add_commands(sub: Any) -> None:
     k.add_argument("--max-speed", type=float, default=1.0, help="m/s")
     k.add_argument("--max-accel", type=float, help="m/s^2 (default: none)")
     k.add_argument("--rate", type=float, default=10.0, help="pose samples per second")
-    k.add_argument("--world", help="world name (default: the only one that answers)")
-    k.add_argument("--connect", action="append", help=f"Zenoh router (default {DEFAULT_CONNECT})")
-    k.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 client configuration")
+    add_zenoh_flags(k, world=WORLD_HELP)
     k.set_defaults(fn=cmd_vehicles)
 
 
@@ -107,15 +104,9 @@ def _log() -> None:
 
 @contextlib.contextmanager
 def _session(args: argparse.Namespace) -> Iterator[Any]:
-    from ..bus.session import BusError, make_config, open_session
-
-    try:
-        conf = make_config("client", connect=args.connect or [DEFAULT_CONNECT],
-                           config_file=args.zenoh_config, connect_timeout_ms=3000)
-        with open_session(conf) as s:
-            yield s
-    except BusError as e:
-        raise UserError(f"zenoh: {e}") from None
+    """--connect, else the endpoints of --zenoh-config / $ZENOH_CONFIG, else tcp/127.0.0.1:7447."""
+    with client_session(args) as s:
+        yield s
 
 
 def _world(s: Any, args: argparse.Namespace) -> str:

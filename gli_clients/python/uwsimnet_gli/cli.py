@@ -8,10 +8,12 @@
     gli pose bravo 120 0 10 --velocity 1 0 0 --rate 10
     gli flow --src alpha-modem --dst 2 --size 32 --interval 1 --name alpha-to-bravo
     gli control pause ; gli control move vehicle='"bravo"' p='[10,0,5]'
+    gli vehicle bravo waypoint='[10,0,5]'          # a kinematic vehicle (`uwsimnet vehicles`)
+    gli trace --count 10                           # trace events (what a visitor may read)
 
-Common options: -e/--connect ENDPOINT (default tcp/127.0.0.1:7447), -w/--world NAME (default: the only
-world that answers), --config FILE (a Zenoh JSON5 client configuration, default $ZENOH_CONFIG; -e replaces
-its endpoints).
+Common options (as `uwsimnet`'s): -e/--connect ENDPOINT (default: the configuration file's, else
+tcp/127.0.0.1:7447), -w/--world NAME (default: the only world that answers), --zenoh-config FILE (alias
+--config; a Zenoh JSON5 client configuration, default $ZENOH_CONFIG; --connect replaces its endpoints).
 """
 
 from __future__ import annotations
@@ -64,8 +66,8 @@ def cmd_send(args: argparse.Namespace) -> int:
         modem = world.modem(args.modem)
         kind = modem.wait_kind(timeout=args.timeout)
         if kind is None:
-            print(f"warning: nobody serves {args.modem!r} in world {world.name!r} (no driver token)",
-                  file=sys.stderr)
+            print(f"warning: nobody serves {args.modem!r} in world {world.name!r} (no driver token: no broker"
+                  " or driver serves it, or this identity may not use it)", file=sys.stderr)
         key = world.keys.modem(args.modem, "tx")
         print(f"Declaring Publisher on '{key}' ({kind or 'no driver'})...")
         bad = 0
@@ -268,12 +270,7 @@ def _json_value(s: str) -> Any:
 
 
 def cmd_control(args: argparse.Namespace) -> int:
-    req: dict[str, Any] = {}
-    for item in args.args:
-        k, sep, v = item.partition("=")
-        if not sep:
-            raise GliError(f"expected KEY=VALUE, got {item!r}")
-        req[k] = _json_value(v)
+    req = _kv(args.args)
     with _world(args) as world:
         replies = world.control_all(args.op, timeout=args.timeout, **req)
     if not replies:
@@ -284,15 +281,68 @@ def cmd_control(args: argparse.Namespace) -> int:
     return 0 if all(r.get("ok") for r in replies) else 1
 
 
+def _kv(items: Sequence[str]) -> dict[str, Any]:
+    req: dict[str, Any] = {}
+    for item in items:
+        k, sep, v = item.partition("=")
+        if not sep:
+            raise GliError(f"expected KEY=VALUE, got {item!r}")
+        req[k] = _json_value(v)
+    return req
+
+
+def cmd_vehicle(args: argparse.Namespace) -> int:
+    cmd = _kv(args.args)
+    with _world(args) as world:
+        print(f"Declaring Publisher on '{world.keys.vehicle_cmd(args.vehicle)}'...", file=sys.stderr)
+        world.command_vehicle(args.vehicle, **cmd)
+        print(f"Putting command {json.dumps(cmd)}")
+        time.sleep(0.05)            # let the put leave before the session closes
+    return 0
+
+
+def cmd_trace(args: argparse.Namespace) -> int:
+    with _world(args) as world:
+        q: queue.Queue = queue.Queue()
+        key = world.keys.trace_all
+        print(f"Declaring Subscriber on '{key}'...", file=sys.stderr)
+        sub = world.session.declare_subscriber(key, lambda s: q.put(s.payload.to_bytes()))
+        n = 0
+        deadline = None if args.timeout is None else time.monotonic() + args.timeout
+        try:
+            while args.count is None or n < args.count:
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    break
+                try:
+                    raw = q.get(timeout=0.2 if left is None else min(0.2, left))
+                except queue.Empty:
+                    continue
+                rec = read_map(raw)
+                if isinstance(rec, dict):
+                    n += 1
+                    print(json.dumps(rec, default=lambda b: b.hex() if isinstance(b, bytes) else str(b)),
+                          flush=True)
+        finally:
+            sub.undeclare()
+    if n == 0:
+        print(f"no trace event on '{key}'", file=sys.stderr)
+        return 1
+    return 0
+
+
 # -- parser -------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="gli", description="uwsimnet modems over Zenoh: send, listen, info,"
                                 " pose, flow, control")
-    p.add_argument("-e", "--connect", action="append", help=f"router endpoint (default {DEFAULT_ENDPOINT})")
+    # the Zenoh options of `uwsimnet` (uwsimnet_zenoh/cli/zenoh_flags.py), with the same meaning
+    p.add_argument("-e", "--connect", action="append", metavar="ENDPOINT",
+                   help=f"Zenoh router to connect to (repeat; default: the --zenoh-config file's, else"
+                        f" {DEFAULT_ENDPOINT})")
     p.add_argument("-w", "--world", help="world name (default: the only one that answers)")
-    p.add_argument("--config", "--zenoh-config", dest="config",
-                   help="Zenoh JSON5 client configuration file (TLS, user/password; default $ZENOH_CONFIG);"
-                        " -e replaces its endpoints")
+    p.add_argument("--zenoh-config", "--config", dest="config", metavar="FILE",
+                   help="Zenoh JSON5 client configuration (TLS, user/password; default $ZENOH_CONFIG);"
+                        " its endpoints unless --connect is given")
     sub = p.add_subparsers(dest="cmd", required=True)
 
     s = sub.add_parser("send", help="send frames from a modem")
@@ -356,6 +406,16 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("args", nargs="*", help="KEY=VALUE (VALUE parsed as JSON when it is JSON)")
     c.add_argument("--timeout", type=float, default=2.0)
     c.set_defaults(fn=cmd_control)
+
+    ve = sub.add_parser("vehicle", help="command a kinematic vehicle (`uwsimnet vehicles`): waypoint, v, ...")
+    ve.add_argument("vehicle")
+    ve.add_argument("args", nargs="+", help="KEY=VALUE (VALUE parsed as JSON), e.g. waypoint=[10,0,5]")
+    ve.set_defaults(fn=cmd_vehicle)
+
+    tr = sub.add_parser("trace", help="print trace events as the broker publishes them (JSON lines)")
+    tr.add_argument("--count", type=int, help="stop after this many events")
+    tr.add_argument("--timeout", type=float, help="stop after this many seconds")
+    tr.set_defaults(fn=cmd_trace)
     return p
 
 
