@@ -76,6 +76,26 @@ def file_endpoints(path: str) -> tuple[str, list[str], list[str]]:
     return str(mode), out["connect"], out["listen"]
 
 
+def access_of(conf: zenoh.Config) -> dict[str, Any] | None:
+    """The `metadata.uwsimnet` access section of a configuration rendered by `uwsimnet deploy render`."""
+    try:
+        v = json.loads(conf.get_json("metadata"))
+    except (zenoh.ZError, ValueError):
+        return None
+    a = v.get("uwsimnet") if isinstance(v, dict) else None
+    return a if isinstance(a, dict) else None
+
+
+def file_access(path: str | None) -> dict[str, Any] | None:
+    """`access_of` a configuration file (None without a file, or if it has no access section)."""
+    if not path:
+        return None
+    try:
+        return access_of(zenoh.Config.from_file(path))
+    except zenoh.ZError as e:
+        raise BusError(f"{path}: {' '.join(str(e).split())}") from None
+
+
 def client_config(connect: Sequence[str] = (), config_file: str | None = None, *,
                   connect_timeout_ms: int | None = 3000) -> tuple[zenoh.Config, list[str]]:
     """A client configuration and the endpoints it connects to: `connect` when given (replacing the

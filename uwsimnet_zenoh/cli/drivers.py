@@ -23,7 +23,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from ..errors import UserError
-from .zenoh_flags import add_zenoh_flags, client_session
+from .zenoh_flags import add_zenoh_flags, check_access, client_session, configured_world
 
 WORLD_HELP = "world name (default: the only one that answers)"
 
@@ -112,8 +112,9 @@ def _session(args: argparse.Namespace) -> Iterator[Any]:
 def _world(s: Any, args: argparse.Namespace) -> str:
     from ..drivers.zenoh_backend import BackendError, discover_world
 
-    if args.world:
-        return args.world
+    world = configured_world(args)
+    if world:
+        return world
     try:
         return discover_world(s)
     except BackendError as e:
@@ -140,6 +141,7 @@ def cmd_driver(args: argparse.Namespace) -> int:
     _log()
     with _session(args) as s:
         world = _world(s, args)
+        check_access(args, "driver", world, (args.id,))
         if args.driver == "evologics":
             from ..drivers.evologics import EvoLogicsDriver
 
@@ -178,6 +180,7 @@ def _serve(args: argparse.Namespace, what: str, start: Any) -> int:
     _log()
     with _session(args) as s:
         world = _world(s, args)
+        check_access(args, "backend", world, (args.id,))
         try:
             be = ZenohBackend(s, world, args.id)
         except BackendError as e:
@@ -283,6 +286,7 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
         vehicles.append(KinematicVehicle(name, p, max_speed=args.max_speed, max_accel=args.max_accel))
     with _session(args) as s:
         world = _world(s, args)
+        check_access(args, "vehicles", world, vehicles=tuple(v.name for v in vehicles))
         runner = KinematicRunner(s, world, vehicles, rate_hz=args.rate).start()
         try:
             print(f"uwsimnet: vehicles ready in {world}: {', '.join(v.name for v in vehicles)}", flush=True)

@@ -21,6 +21,7 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
+from uwsimnet_gli import wire
 from uwsimnet_gli.wire import DEFAULT_ENDPOINT as DEFAULT_CONNECT
 
 from ..errors import UserError
@@ -65,3 +66,31 @@ def client_session(args: argparse.Namespace, *, timeout_ms: int = 3000) -> Itera
     finally:
         with contextlib.suppress(Exception):
             s.close()
+
+
+def access(args: argparse.Namespace) -> dict[str, Any] | None:
+    """What the deployment allows this identity (the `metadata.uwsimnet` of a rendered configuration)."""
+    from ..bus.session import BusError, file_access  # noqa: PLC0415
+
+    try:
+        return file_access(config_file(args))
+    except BusError as e:
+        raise UserError(f"zenoh: {e}") from None
+
+
+def configured_world(args: argparse.Namespace) -> str | None:
+    """--world, else the one world the configuration's access control names, else None (discover)."""
+    if getattr(args, "world", None):
+        return args.world
+    w = (access(args) or {}).get("world")
+    return w if isinstance(w, str) and wire.is_chunk(w) else None
+
+
+def check_access(args: argparse.Namespace, program: str, world: str, modems: tuple[str, ...] = (),
+                 vehicles: tuple[str, ...] = ()) -> None:
+    """UserError (one line) if the configuration's access control would drop what `program` (a key of
+    `uwsimnet_gli.wire.USES`) declares: refused at once instead of a silent hang."""
+    a = access(args)
+    refused = wire.access_refusals(a, program, world, modems, vehicles)
+    if refused:
+        raise UserError(wire.refusal_message(a, refused))

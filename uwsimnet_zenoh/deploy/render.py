@@ -400,8 +400,13 @@ def client_config(inv: Inventory, name: str, passwords: Mapping[str, str]) -> di
     """The configuration of identity `name` (a client of its router)."""
     ident = inv.identities[name]
     local = ident.router == ident.host
+    role = ROLES[ident.role]
+    allow = {cap: keys for cap in wire.CAPABILITIES
+             if (keys := role_keys(role, cap, ident.modems, ident.vehicles))}
     return {
         "mode": "client",
+        # what the routers allow it (wire.ACCESS_KEY): commands refuse at once what would be dropped
+        "metadata": {wire.ACCESS_KEY: {"identity": name, "role": ident.role, "world": inv.world, "allow": allow}},
         "connect": {"endpoints": [inv.endpoint(ident.router, local=local)]},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": {

@@ -63,6 +63,7 @@ def _frame_json(f: Frame) -> str:
 # -- commands -----------------------------------------------------------------------------------
 def cmd_send(args: argparse.Namespace) -> int:
     with _world(args) as world:
+        world.check("modem", [args.modem])
         modem = world.modem(args.modem)
         kind = modem.wait_kind(timeout=args.timeout)
         if kind is None:
@@ -100,6 +101,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
     with _world(args) as world:
         s = world.session
         mods = args.modem or ["*"]
+        world.check("listen", mods)
         n = 0
         done = False
         q: queue.Queue = queue.Queue()
@@ -147,11 +149,15 @@ def cmd_listen(args: argparse.Namespace) -> int:
         finally:
             for sub in subs:
                 sub.undeclare()
+    if args.count is not None and n < args.count:
+        print(f"{n} of {args.count} frame(s) within {args.timeout:g} s", file=sys.stderr)
+        return 1
     return 0
 
 
 def cmd_info(args: argparse.Namespace) -> int:
     with _world(args) as world:
+        world.check("info", [args.modem or "*"])
         key = world.keys.modem(args.modem or "*", "info")
         out = []
         for r in world.session.get(key, timeout=args.timeout):
@@ -182,6 +188,7 @@ def cmd_pose(args: argparse.Namespace) -> int:
     p0 = (args.x, args.y, args.z)
     v = tuple(args.velocity) if args.velocity else None
     with _world(args) as world:
+        world.check("pose", vehicles=[args.vehicle])
         key = world.keys.pose(args.vehicle)
         print(f"Declaring Publisher on '{key}'...", file=sys.stderr)
         if not args.rate:
@@ -249,6 +256,8 @@ def run_flow(world: World, src: str, dst: int, size: int, interval: float, *, ar
 def cmd_flow(args: argparse.Namespace) -> int:
     interval = args.interval if args.interval else 1.0 / args.rate
     with _world(args) as world:
+        world.check("modem", [args.src])
+        world.check("clock")
         until = f" to {args.stop:g}" if args.stop is not None else ""
         print(f"flow {args.name or '-'}: {args.src} -> {args.dst}, {args.size} B every {interval:g} s"
               f" ({args.arrival}) from t={args.start:g}{until}", file=sys.stderr)
@@ -272,6 +281,7 @@ def _json_value(s: str) -> Any:
 def cmd_control(args: argparse.Namespace) -> int:
     req = _kv(args.args)
     with _world(args) as world:
+        world.check("control")
         replies = world.control_all(args.op, timeout=args.timeout, **req)
     if not replies:
         print(f"control/{args.op}: no reply", file=sys.stderr)
@@ -294,6 +304,7 @@ def _kv(items: Sequence[str]) -> dict[str, Any]:
 def cmd_vehicle(args: argparse.Namespace) -> int:
     cmd = _kv(args.args)
     with _world(args) as world:
+        world.check("command", vehicles=[args.vehicle])
         print(f"Declaring Publisher on '{world.keys.vehicle_cmd(args.vehicle)}'...", file=sys.stderr)
         world.command_vehicle(args.vehicle, **cmd)
         print(f"Putting command {json.dumps(cmd)}")
@@ -303,6 +314,7 @@ def cmd_vehicle(args: argparse.Namespace) -> int:
 
 def cmd_trace(args: argparse.Namespace) -> int:
     with _world(args) as world:
+        world.check("trace")
         q: queue.Queue = queue.Queue()
         key = world.keys.trace_all
         print(f"Declaring Subscriber on '{key}'...", file=sys.stderr)

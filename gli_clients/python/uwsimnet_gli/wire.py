@@ -322,6 +322,40 @@ def _inc(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
     return (a[0] == "*" or (a[0] == b[0] and b[0] != "*")) and _inc(a[1:], b[1:])
 
 
+ACCESS_KEY = "uwsimnet"
+"""Under `metadata` of a client configuration rendered by `uwsimnet deploy render`: the identity, its
+role, its world and what the routers' access control allows it, as {"identity", "role", "world",
+"allow": {capability: [relative key expressions]}}.  Commands check what they are about to declare
+against it, so that an action the routers would drop silently is refused at once, in one line."""
+
+
+def access_refusals(access: Any, program: str, world: str, modems: Sequence[str] = (),
+                    vehicles: Sequence[str] = ()) -> list[str]:
+    """What `program` (a key of USES) run in `world` for these modems/vehicles would declare that `access`
+    does not allow, as `"<capability> <key>"` items; [] when `access` is None (no access control known)."""
+    if not isinstance(access, dict):
+        return []
+    allow = access.get("allow") if isinstance(access.get("allow"), dict) else {}
+    aw = access.get("world", "*")
+    out = []
+    for cap in CAPABILITIES:
+        for t in USES[program].keys(cap):
+            for k in expand(t, modems, vehicles):
+                granted = allow.get(cap) or ()
+                if not (aw in ("*", world) and any(isinstance(a, str) and includes(a, k) for a in granted)):
+                    out.append(f"{cap} {PREFIX}/{world}/{k}")
+    return out
+
+
+def refusal_message(access: Any, refused: Sequence[str]) -> str:
+    """One line: who may not do what (the first refusal, and how many more)."""
+    a = access if isinstance(access, dict) else {}
+    who = f"{a.get('identity', '?')} (role {a.get('role', '?')})"
+    more = f" and {len(refused) - 1} more" if len(refused) > 1 else ""
+    return (f"{who} may not {refused[0]}{more}: the deployment's access control refuses it"
+            " (docs/deployment.md, roles)")
+
+
 def modem_id(key: object, leaf: str) -> str | None:
     """The modem id of a `.../modem/<id>/<leaf>` key, else None (the broker's hot path)."""
     k = parse(key)

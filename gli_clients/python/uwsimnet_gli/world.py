@@ -12,7 +12,18 @@ from typing import Any
 import zenoh
 
 from .records import read_map
-from .wire import DEFAULT_ENDPOINT, PREFIX, Keys, check_chunk, encode_pose, pack
+from .wire import (
+    ACCESS_KEY,
+    DEFAULT_ENDPOINT,
+    PREFIX,
+    Keys,
+    access_refusals,
+    check_chunk,
+    encode_pose,
+    is_chunk,
+    pack,
+    refusal_message,
+)
 
 
 class GliError(RuntimeError):
@@ -61,6 +72,16 @@ def config_endpoints(conf: zenoh.Config) -> list[str]:
     return [str(e) for e in v] if isinstance(v, list) else []
 
 
+def config_access(conf: zenoh.Config) -> dict[str, Any] | None:
+    """The access section (`metadata.uwsimnet`) of a configuration rendered by `uwsimnet deploy render`."""
+    try:
+        v = json.loads(conf.get_json("metadata"))
+    except (zenoh.ZError, ValueError):
+        return None
+    a = v.get(ACCESS_KEY) if isinstance(v, dict) else None
+    return a if isinstance(a, dict) else None
+
+
 def discover_worlds(session: zenoh.Session, timeout: float = 2.0) -> list[str]:
     """Names of the worlds whose brokers answer `uwsimnet/*/control/state`."""
     found = set()
@@ -89,9 +110,12 @@ class World:
                  config: zenoh.Config | None = None, session: zenoh.Session | None = None,
                  timeout: float = 2.0) -> None:
         self._own = session is None
+        self.access: dict[str, Any] | None = None
+        """What the deployment allows this identity (`metadata.uwsimnet` of a rendered configuration)."""
         if session is None:
             # no config: $ZENOH_CONFIG if set (connect replaces its endpoints), else client_config()
             conf = config if config is not None else load_config(None, connect)
+            self.access = config_access(conf)
             try:
                 session = zenoh.open(conf)
             except zenoh.ZError as e:
@@ -101,6 +125,9 @@ class World:
                                " running there, and are the TLS files and password right?)") from None
         self.session = session
         try:
+            aw = (self.access or {}).get("world")
+            if name is None and isinstance(aw, str) and is_chunk(aw):
+                name = aw                   # the deployment's world (discovery would be refused)
             if name is None:
                 worlds = discover_worlds(session, timeout)
                 if len(worlds) != 1:
@@ -143,6 +170,13 @@ class World:
         if self._own:
             with contextlib.suppress(Exception):
                 self.session.close()
+
+    def check(self, program: str, modems: Sequence[str] = (), vehicles: Sequence[str] = ()) -> None:
+        """GliError (one line) if this identity's access control would drop what `program` (a key of
+        `uwsimnet_gli.wire.USES`: modem, listen, info, pose, command, control, trace, ...) declares."""
+        refused = access_refusals(self.access, program, self.name, modems, vehicles)
+        if refused:
+            raise GliError(refusal_message(self.access, refused))
 
     # -- modems ----------------------------------------------------------------------------------
     def modem(self, dev: str, **kw: Any):
