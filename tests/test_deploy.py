@@ -221,3 +221,38 @@ def test_make_certs(tmp_path: Path) -> None:
     assert (tmp_path / "ca.pem").read_bytes() == ca
     bad = subprocess.run([str(script), str(tmp_path), "no/slash"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "bad name" in bad.stderr
+
+
+def test_every_session_command_uses_the_files_endpoints_and_names_them(tmp_path: Path) -> None:
+    """Issue #18: `uwsimnet vehicles/driver/emulate/bridge --zenoh-config FILE` dialled 127.0.0.1:7447
+    whatever the file said.  Now each connects to the file's endpoint and, when nothing listens there,
+    says so in one line (the endpoint and the file) with exit code 2; so does `gli`."""
+    import socket
+    import sys
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]                   # closed again: nothing listens there
+    conf = tmp_path / "c.json5"
+    conf.write_text(f'{{ mode: "client", connect: {{ endpoints: ["tcp/127.0.0.1:{port}"] }} }}\n')
+    uw = [sys.executable, "-m", "uwsimnet_zenoh.cli"]
+    cmds = [[*uw, "vehicles", "--vehicle", "v=0,0,0", "--world", "w"],
+            [*uw, "driver", "serial", "--device", "/dev/null", "--id", "m", "--world", "w"],
+            [*uw, "emulate", "serial", "--id", "m", "--world", "w"],
+            [*uw, "bridge", "socket", "--id", "m", "--world", "w"]]
+    procs = [subprocess.Popen([*c, "--zenoh-config", str(conf)], text=True, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE) for c in cmds]
+    procs.append(subprocess.Popen([sys.executable, "-m", "uwsimnet_gli.cli", "--zenoh-config", str(conf), "-w", "w",
+                                   "info"], text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE))
+    for p in procs:
+        out, err = p.communicate(timeout=60)
+        lines = err.strip().splitlines()
+        assert p.returncode == 2 and len(lines) == 1, (p.args, out, err)
+        assert f"cannot connect to tcp/127.0.0.1:{port}" in lines[0], lines[0]
+        if "uwsimnet_zenoh.cli" in p.args:
+            assert f"(from {conf})" in lines[0], lines[0]
+
+
+def test_deployment_page_holds_the_generated_roles_table() -> None:
+    page = (Path(__file__).resolve().parents[1] / "docs" / "deployment.md").read_text(encoding="utf-8")
+    assert deploy.roles_markdown() in page, "regenerate the table of docs/deployment.md: render.roles_markdown()"

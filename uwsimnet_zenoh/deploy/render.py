@@ -78,12 +78,12 @@ ROLES: dict[str, Role] = {
     "broker": Role(("broker",), ("uwsimnet run SCENE --clock realtime",),
                    "the simulator: serves the scene's modems, publishes rx/status/trace/clock and scene poses"),
     "driver": Role(("driver", "backend"),
-                   ("uwsimnet driver evologics|serial --id M", "uwsimnet emulate evologics|serial --id M",
-                    "uwsimnet bridge socket|mq --id M"),
+                   ("uwsimnet driver evologics/serial --id M", "uwsimnet emulate evologics/serial --id M",
+                    "uwsimnet bridge socket/mq --id M"),
                    "a real modem (HIL) that takes its modems over, or an emulator/bridge on the modem's host"),
     "app": Role(("modem", "listen", "info", "pose", "poses", "command", "clock", "control", "trace",
                  "vehicles", "backend"),
-                ("gli send|flow M", "gli listen M", "gli info M", "gli pose V", "gli vehicle V", "gli control OP",
+                ("gli send/flow M", "gli listen M", "gli info M", "gli pose V", "gli vehicle V", "gli control OP",
                  "gli trace", "uwsimnet vehicles --vehicle V=X,Y,Z", "uwsimnet emulate ... --id M",
                  "uwsimnet bridge ... --id M"),
                 "an application or robot: sends and receives on its modems, moves its vehicles, controls the run"),
@@ -138,6 +138,18 @@ def role_rules(role: Role, modems: Sequence[str] = (), vehicles: Sequence[str] =
             out.extend((cap, flow, msgs, own if which == "own" else seen_keys(cap, own))
                        for flow, msgs, which in triples)
     return out
+
+
+def roles_markdown() -> str:
+    """The roles table of docs/deployment.md (tests/test_deploy.py checks the page holds this text)."""
+    caps = wire.CAPABILITIES
+    head = "| role | runs | " + " | ".join(caps) + " |\n|" + "---|" * (len(caps) + 2) + "\n"
+    rows = []
+    for name, role in ROLES.items():
+        cells = [", ".join(f"`{k}`" for k in role.uses(c)) or "-" for c in caps]
+        rows.append(f"| **{name}** | " + "<br>".join(f"`{c}`" for c in role.commands) + " | " + " | ".join(cells)
+                    + " |")
+    return head + "\n".join(rows) + "\n"
 
 
 class InventoryError(UwsimnetError, ValueError):
