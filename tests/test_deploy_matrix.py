@@ -10,14 +10,14 @@ Three hosts, one `uwsimnet router --config` each, in a chain h1 - h2 - h3 (h2 in
     h3  robots: `app-a` (app, modem a, vehicle va), `app-b` (app, modems b y, vehicle vb: runs `uwsimnet
         vehicles`)
 
-The same matrix runs twice: the hosts on loopback ports of their own, and (as root, where `ip netns`
-works) in three network namespaces of deploy/netns/hosts.sh.  Half-way through, the middle router is
-restarted; the second half of the matrix runs on the restarted router.
+The hosts are three network namespaces of deploy/netns/hosts.sh where they can be made (root, `ip netns`,
+`nsenter`), else loopback ports of their own (UWSIMNET_LAB_HOSTS=loopback|netns chooses).  Half-way
+through, the middle router is restarted; the second half of the matrix runs on the restarted router.
 
 Refusals are asserted two ways: the command exits 2 at once with one line naming the identity and the
-key (it checks its rendered access section before declaring anything); and the router itself drops the
-same action done with the raw Zenoh API (a put with the same configuration reaches nobody, checked
-against a later allowed put on the same path).
+key (it checks its rendered access section before opening a session: these run while h2 restarts); and
+the routers themselves drop the same actions done with the raw Zenoh API (a put with the same
+configuration reaches nobody, checked against a later allowed put on the same path).
 """
 
 from __future__ import annotations
@@ -226,14 +226,22 @@ def _netns(tmp: Path) -> Iterator[Lab]:
         subprocess.run([str(HOSTS_SH), "down"], env=env, capture_output=True, timeout=60)
 
 
-@pytest.fixture(scope="module", params=["loopback", "netns"])
-def lab(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
-    make = _loopback if request.param == "loopback" else _netns
-    gen = make(tmp_path_factory.mktemp(f"lab-{request.param}"))
+def hosts_kind() -> str:
+    """netns where it works (root, iproute2, nsenter), else loopback; UWSIMNET_LAB_HOSTS=loopback|netns forces."""
+    want = os.environ.get("UWSIMNET_LAB_HOSTS")
+    if want:
+        return want
+    ok = netns_unavailable("the lab matrix", openssl=True) is None and shutil.which("nsenter") is not None
+    return "netns" if ok else "loopback"
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
+    kind = hosts_kind()
+    gen = (_loopback if kind == "loopback" else _netns)(tmp_path_factory.mktemp(f"lab-{kind}"))
     lab = next(gen)
     try:
-        for h in ("h1", "h2", "h3"):
-            lab.start_router(h)
+        parallel(*(lambda h=h: lab.start_router(h) for h in ("h1", "h2", "h3")))
         yield lab
     finally:
         lab.stop()
@@ -297,20 +305,27 @@ def parallel(*calls: Callable[[], Any]) -> list[Any]:
 
 def test_lab_matrix(lab: Lab) -> None:
     t0 = time.monotonic()
+
+    def phase(name: str) -> None:
+        print(f"lab matrix: {name} at {time.monotonic() - t0:.1f} s", flush=True)
     # -- broker (h1), kinematic vehicles (app-b, h3), poses (app-a) ---------------------------------------
     lab.start("brk", ["run", str(lab.root / "scene.xml"), "--duration", "600", "--trace",
                       str(lab.root / "trace.jsonl")], "uwsimnet: running")
-    lab.start("app-b", ["vehicles", "--vehicle", "vb=10,0,0", "--max-speed", "5"], "vehicles ready in lab: vb")
-    ok(lab.gli("app-a", "pose", "va", "0", "0", "0"))
+    parallel(lambda: lab.start("app-b", ["vehicles", "--vehicle", "vb=10,0,0", "--max-speed", "5"],
+                               "vehicles ready in lab: vb"),
+             lambda: ok(lab.gli("app-a", "pose", "va", "0", "0", "0")))
     # poses reach the broker (its pose/** subscriber): va where app-a put it, vb where `uwsimnet vehicles` is
-    until(lambda: info(lab, "app-a", "a").get("position") == [0.0, 0.0, 0.0], "app-a's pose of va")
+    parallel(lambda: until(lambda: info(lab, "app-a", "a").get("position") == [0.0, 0.0, 0.0], "app-a's pose of va"),
+             lambda: until(lambda: info(lab, "app-b", "b").get("position") == [10.0, 0.0, 0.0],
+                           "vb's pose from uwsimnet vehicles"))
     assert info(lab, "app-b", "b")["kind"] == "sim"
-    until(lambda: info(lab, "app-b", "b").get("position") == [10.0, 0.0, 0.0], "vb's pose from uwsimnet vehicles")
 
+    phase("poses")
     # -- app: send --wait, listen, trace (visitor), control, vehicle commands ---------------------------
-    listen_b = lab.start("app-b", ["listen", "b", "--count", "1", "--timeout", str(WAIT), "--json"],
-                         "Press CTRL-C", gli=True)
-    trace = lab.start("vis", ["trace", "--count", "1", "--timeout", str(WAIT)], "Declaring Subscriber", gli=True)
+    listen_b, trace = parallel(
+        lambda: lab.start("app-b", ["listen", "b", "--count", "1", "--timeout", str(WAIT), "--json"],
+                          "Press CTRL-C", gli=True),
+        lambda: lab.start("vis", ["trace", "--count", "1", "--timeout", str(WAIT)], "Declaring Subscriber", gli=True))
     time.sleep(1.0)                                       # the subscriptions reach the broker's router
     sent = lab.gli("app-a", "send", "a", str(ADDRESS["b"]), "hello-b", "--wait", "--timeout", "10")
     ok(sent, "(sim)")
@@ -325,6 +340,7 @@ def test_lab_matrix(lab: Lab) -> None:
     assert json.loads(ok(state))["world"] == WORLD
     until(lambda: info(lab, "app-b", "b")["position"][0] > 10.5, "vb moving to its waypoint")
 
+    phase("app")
     # -- refused: outside its role, at once and in one line ----------------------------------------
     checks = [
         (lambda: lab.gli("app-a", "send", "b", "1", "x", "--wait"), "app-a", "publish uwsimnet/lab/modem/b/tx"),
@@ -344,35 +360,43 @@ def test_lab_matrix(lab: Lab) -> None:
         (lambda: lab.uwsimnet("drv-y", "emulate", "serial", "--id", "z"), "drv-y", "publish uwsimnet/lab/modem/z/tx"),
         (lambda: lab.uwsimnet("vis", "bridge", "socket", "--id", "a"), "vis", "publish uwsimnet/lab/modem/a/tx"),
     ]
-    results = parallel(*(c for c, _, _ in checks))
-    for r, (_, who, what) in zip(results, checks, strict=True):
-        refused(r, who, what)
-    # ... and the routers drop the same actions done with the raw Zenoh API
+    # the routers drop the same actions done with the raw Zenoh API (before the restart: it needs h2)
     _router_refuses(lab)
+    phase("raw refusals")
 
     # -- the middle router restarts; the second half runs on the new one ----------------------------
-    lab.routers.pop("h2").stop()
-    lab.start_router("h2")
-    until(lambda: lab.gli("app-a", "info", "a", "--timeout", "2").returncode == 0, "app-a reaches the broker again")
+    def restart() -> None:
+        lab.routers.pop("h2").stop()
+        lab.start_router("h2")
+        until(lambda: lab.gli("app-a", "info", "a", "--timeout", "2").returncode == 0,
+              "app-a reaches the broker again")
+    # meanwhile the refusals: checked by each command before it opens a session, they need no router
+    results = parallel(restart, *(c for c, _, _ in checks))[1:]
+    for r, (_, who, what) in zip(results, checks, strict=True):
+        refused(r, who, what)
 
+    phase("restart and refusals")
     # -- driver: an emulated serial radio (driver identity of z) and a real driver of y on its pty ----
     link = lab.root / "ttyRADIO"
     lab.start("emu-z", ["emulate", "serial", "--id", "z", "--link", str(link)], "emulator serial ready")
     lab.start("drv-y", ["driver", "serial", "--device", str(link), "--baud", "0", "--id", "y"],
               "driver serial ready for lab/y")
-    until(lambda: info(lab, "app-b", "y").get("kind") == "real", "y served by its real driver")
-    listen_a = lab.start("app-a", ["listen", "a", "--count", "1", "--timeout", str(WAIT), "--json"],
-                         "Press CTRL-C", gli=True)
+    _, listen_a = parallel(
+        lambda: until(lambda: info(lab, "app-b", "y").get("kind") == "real", "y served by its real driver"),
+        lambda: lab.start("app-a", ["listen", "a", "--count", "1", "--timeout", str(WAIT), "--json"],
+                          "Press CTRL-C", gli=True))
     time.sleep(1.0)
     # app-b sends from y: its driver writes the frame to the radio (the emulated z), z transmits it to a
     ok(lab.gli("app-b", "send", "y", str(ADDRESS["a"]), "via-real-y", "--wait", "--timeout", "10"), "(real)")
     assert listen_a.proc.wait(WAIT) == 0, listen_a.output()
     assert json.loads(listen_a.wait_for('"modem": "a"'))["text"] == "via-real-y"
 
+    phase("driver")
     # -- a bridge with an app identity: a TCP application on modem a, frame to b --------------------
-    listen_b = lab.start("app-b", ["listen", "b", "--count", "1", "--timeout", str(WAIT), "--json"],
-                         "Press CTRL-C", gli=True)
-    bridge = lab.start("app-a", ["bridge", "socket", "--id", "a"], "bridge socket ready")
+    listen_b, bridge = parallel(
+        lambda: lab.start("app-b", ["listen", "b", "--count", "1", "--timeout", str(WAIT), "--json"],
+                          "Press CTRL-C", gli=True),
+        lambda: lab.start("app-a", ["bridge", "socket", "--id", "a"], "bridge socket ready"))
     port = int(bridge.wait_for("bridge socket ready").split("tcp 127.0.0.1:")[1].split()[0])
     time.sleep(1.0)
     r = lab.python(lab.host("app-a"), BRIDGE_CLIENT, str(port), str(ADDRESS["b"]))

@@ -121,6 +121,14 @@ def _world(s: Any, args: argparse.Namespace) -> str:
         raise UserError(str(e)) from None
 
 
+def _precheck(args: argparse.Namespace, program: str, modems: tuple[str, ...] = (),
+              vehicles: tuple[str, ...] = ()) -> None:
+    """The access check before any session is opened, when the world is known without asking."""
+    world = configured_world(args)
+    if world:
+        check_access(args, program, world, modems, vehicles)
+
+
 def _wait_for_signal() -> None:
     stop = threading.Event()
     old = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -139,6 +147,7 @@ def cmd_driver(args: argparse.Namespace) -> int:
     from ..drivers.zenoh_host import DriverHost
 
     _log()
+    _precheck(args, "driver", (args.id,))
     with _session(args) as s:
         world = _world(s, args)
         check_access(args, "driver", world, (args.id,))
@@ -178,6 +187,7 @@ def _serve(args: argparse.Namespace, what: str, start: Any) -> int:
     from ..drivers.zenoh_backend import BackendError, ZenohBackend
 
     _log()
+    _precheck(args, "backend", (args.id,))
     with _session(args) as s:
         world = _world(s, args)
         check_access(args, "backend", world, (args.id,))
@@ -284,6 +294,7 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
         except ValueError:
             raise UserError(f"--vehicle {spec!r}: expected NAME=X,Y,Z") from None
         vehicles.append(KinematicVehicle(name, p, max_speed=args.max_speed, max_accel=args.max_accel))
+    _precheck(args, "vehicles", vehicles=tuple(v.name for v in vehicles))
     with _session(args) as s:
         world = _world(s, args)
         check_access(args, "vehicles", world, vehicles=tuple(v.name for v in vehicles))

@@ -30,15 +30,31 @@ from typing import Any
 
 import zenoh
 
-from uwsimnet_gli.world import GliError, World, load_config
+from uwsimnet_gli.world import GliError, World, config_access, load_config
 
 from .records import Frame, Status, read_map, read_rx, read_status
-from .wire import DEFAULT_ENDPOINT
+from .wire import DEFAULT_ENDPOINT, access_refusals, refusal_message
 
 
-def _world(args: argparse.Namespace) -> World:
+def _world(args: argparse.Namespace, *checks: tuple[Any, ...]) -> World:
+    """The world of the options; `checks` = (program, modems, vehicles) the command will run: refused
+    at once, before any session is opened, when the configuration's access section does not allow it."""
     conf = load_config(args.config, args.connect)
-    return World(args.world, connect=args.connect or DEFAULT_ENDPOINT, config=conf)
+    access = config_access(conf)
+    name = args.world or (access or {}).get("world")
+    if access is not None and isinstance(name, str) and name != "*":
+        for program, modems, vehicles in checks:
+            refused = access_refusals(access, program, name, modems, vehicles)
+            if refused:
+                raise GliError(refusal_message(access, refused))
+    world = World(args.world, connect=args.connect or DEFAULT_ENDPOINT, config=conf)
+    try:
+        for program, modems, vehicles in checks:        # the world may have been discovered
+            world.check(program, modems, vehicles)
+    except BaseException:
+        world.close()
+        raise
+    return world
 
 
 def _show(data: bytes) -> str:
@@ -62,8 +78,7 @@ def _frame_json(f: Frame) -> str:
 
 # -- commands -----------------------------------------------------------------------------------
 def cmd_send(args: argparse.Namespace) -> int:
-    with _world(args) as world:
-        world.check("modem", [args.modem])
+    with _world(args, ("modem", [args.modem], ())) as world:
         modem = world.modem(args.modem)
         kind = modem.wait_kind(timeout=args.timeout)
         if kind is None:
@@ -98,10 +113,9 @@ def cmd_send(args: argparse.Namespace) -> int:
 
 
 def cmd_listen(args: argparse.Namespace) -> int:
-    with _world(args) as world:
+    with _world(args, ("listen", args.modem or ["*"], ())) as world:
         s = world.session
         mods = args.modem or ["*"]
-        world.check("listen", mods)
         n = 0
         done = False
         q: queue.Queue = queue.Queue()
@@ -156,8 +170,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    with _world(args) as world:
-        world.check("info", [args.modem or "*"])
+    with _world(args, ("info", [args.modem or "*"], ())) as world:
         key = world.keys.modem(args.modem or "*", "info")
         out = []
         for r in world.session.get(key, timeout=args.timeout):
@@ -187,8 +200,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_pose(args: argparse.Namespace) -> int:
     p0 = (args.x, args.y, args.z)
     v = tuple(args.velocity) if args.velocity else None
-    with _world(args) as world:
-        world.check("pose", vehicles=[args.vehicle])
+    with _world(args, ("pose", (), [args.vehicle])) as world:
         key = world.keys.pose(args.vehicle)
         print(f"Declaring Publisher on '{key}'...", file=sys.stderr)
         if not args.rate:
@@ -255,9 +267,7 @@ def run_flow(world: World, src: str, dst: int, size: int, interval: float, *, ar
 
 def cmd_flow(args: argparse.Namespace) -> int:
     interval = args.interval if args.interval else 1.0 / args.rate
-    with _world(args) as world:
-        world.check("modem", [args.src])
-        world.check("clock")
+    with _world(args, ("modem", [args.src], ()), ("clock", (), ())) as world:
         until = f" to {args.stop:g}" if args.stop is not None else ""
         print(f"flow {args.name or '-'}: {args.src} -> {args.dst}, {args.size} B every {interval:g} s"
               f" ({args.arrival}) from t={args.start:g}{until}", file=sys.stderr)
@@ -280,8 +290,7 @@ def _json_value(s: str) -> Any:
 
 def cmd_control(args: argparse.Namespace) -> int:
     req = _kv(args.args)
-    with _world(args) as world:
-        world.check("control")
+    with _world(args, ("control", (), ())) as world:
         replies = world.control_all(args.op, timeout=args.timeout, **req)
     if not replies:
         print(f"control/{args.op}: no reply", file=sys.stderr)
@@ -303,8 +312,7 @@ def _kv(items: Sequence[str]) -> dict[str, Any]:
 
 def cmd_vehicle(args: argparse.Namespace) -> int:
     cmd = _kv(args.args)
-    with _world(args) as world:
-        world.check("command", vehicles=[args.vehicle])
+    with _world(args, ("command", (), [args.vehicle])) as world:
         print(f"Declaring Publisher on '{world.keys.vehicle_cmd(args.vehicle)}'...", file=sys.stderr)
         world.command_vehicle(args.vehicle, **cmd)
         print(f"Putting command {json.dumps(cmd)}")
@@ -313,8 +321,7 @@ def cmd_vehicle(args: argparse.Namespace) -> int:
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
-    with _world(args) as world:
-        world.check("trace")
+    with _world(args, ("trace", (), ())) as world:
         q: queue.Queue = queue.Queue()
         key = world.keys.trace_all
         print(f"Declaring Subscriber on '{key}'...", file=sys.stderr)
