@@ -256,3 +256,27 @@ def test_every_session_command_uses_the_files_endpoints_and_names_them(tmp_path:
 def test_deployment_page_holds_the_generated_roles_table() -> None:
     page = (Path(__file__).resolve().parents[1] / "docs" / "deployment.md").read_text(encoding="utf-8")
     assert deploy.roles_markdown() in page, "regenerate the table of docs/deployment.md: render.roles_markdown()"
+
+
+def test_client_files_carry_exactly_the_routers_rules_for_them() -> None:
+    """metadata.uwsimnet of each client file: what the commands check before declaring anything; the same
+    keys as the ingress rules of its group in the routers' access control."""
+    i = deploy.parse_inventory(inv(world="lab"))
+    app = deploy.client_config(i, "app1", deploy.make_passwords(i))["metadata"]["uwsimnet"]
+    assert app["identity"] == "app1" and app["role"] == "app" and app["world"] == "lab"
+    rules = {r["id"]: r for r in deploy.access_control(i)["rules"]}
+    for cap, keys in app["allow"].items():
+        assert [f"uwsimnet/lab/{k}" for k in keys] == rules[f"app-m1/{cap}/in"]["key_exprs"], cap
+    assert "modem/m1/tx" in app["allow"]["publish"] and "modem/m2/tx" not in app["allow"]["publish"]
+
+
+def test_vehicles_restrict_apps_only() -> None:
+    d = inv()
+    d["identities"][1]["vehicles"] = ["r1"]
+    i = deploy.parse_inventory(d)
+    acl = {r["id"]: r for r in deploy.access_control(i)["rules"]}
+    assert acl["app-m1-v.r1/publish/in"]["key_exprs"] == ["uwsimnet/*/modem/m1/tx", "uwsimnet/*/pose/r1",
+                                                          "uwsimnet/*/vehicle/r1/cmd"]
+    d["identities"][2]["vehicles"] = ["r1"]
+    with pytest.raises(deploy.InventoryError, match="vehicles only restrict apps"):
+        deploy.parse_inventory(d)
