@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -224,6 +223,8 @@ CLOCK = "clock"
 CONTROL, CONTROL_ALL = "control/*", "control/**"
 VEHICLE_CMD = "vehicle/{v}/cmd"
 CAPABILITIES = ("publish", "subscribe", "query", "serve", "token", "watch")
+Names = list[str] | tuple[str, ...]
+"""Modem ids or vehicle names (the wire imports msgpack and the stdlib's basics only)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -282,7 +283,7 @@ USES: dict[str, Uses] = {
 """Per program, what it declares on the key space (the rules of deploy/render.py are built from it)."""
 
 
-def expand(template: str, modems: Sequence[str] = (), vehicles: Sequence[str] = (),
+def expand(template: str, modems: Names = (), vehicles: Names = (),
            kind: str = "*") -> list[str]:
     """The key expressions of a template for given modem ids and vehicle names (none: `*`)."""
     out = [template.replace("{kind}", kind)]
@@ -329,8 +330,8 @@ role, its world and what the routers' access control allows it, as {"identity", 
 against it, so that an action the routers would drop silently is refused at once, in one line."""
 
 
-def access_refusals(access: Any, program: str, world: str, modems: Sequence[str] = (),
-                    vehicles: Sequence[str] = ()) -> list[str]:
+def access_refusals(access: Any, program: str, world: str, modems: Names = (),
+                    vehicles: Names = ()) -> list[str]:
     """What `program` (a key of USES) run in `world` for these modems/vehicles would declare that `access`
     does not allow, as `"<capability> <key>"` items; [] when `access` is None (no access control known)."""
     if not isinstance(access, dict):
@@ -347,7 +348,7 @@ def access_refusals(access: Any, program: str, world: str, modems: Sequence[str]
     return out
 
 
-def refusal_message(access: Any, refused: Sequence[str]) -> str:
+def refusal_message(access: Any, refused: Names) -> str:
     """One line: who may not do what (the first refusal, and how many more)."""
     a = access if isinstance(access, dict) else {}
     who = f"{a.get('identity', '?')} (role {a.get('role', '?')})"
