@@ -5,7 +5,9 @@ everything on a machine a client of its router, routers connected to each other 
 Every identity (a router, the broker, a driver, an app, a visitor) authenticates twice: a certificate
 whose CN is its name (mutual TLS) and a user/password (`transport/auth/usrpwd`).  Every router carries the
 same access-control list: what each role may put, subscribe, query, serve and declare on which keys of
-the key space (`ROLES`; the table is in docs/deployment.md).  Anything not allowed is denied.
+the key space, built from what the role's programs declare (`uwsimnet_gli.wire.USES`, `ROLES`; the
+table is in docs/deployment.md).  Anything not allowed is denied.  Each client file also carries its
+identity's rights (`metadata.uwsimnet`), which the commands check before declaring anything.
 
     uwsimnet deploy render INVENTORY.toml -o OUTDIR   # OUTDIR/<host>/... per machine
     uwsimnet deploy certs INVENTORY.toml TLSDIR       # the make-certs.sh command
@@ -30,6 +32,7 @@ Inventory (TOML, see deploy/inventory.example.toml):
     host = "broker"              # the machine it runs on (its config lands in OUTDIR/<host>/clients/)
     # router = "broker"          # the host whose router it connects to (default: host, over loopback)
     # modems = ["m1"]            # driver/app: only these modem ids (default: all)
+    # vehicles = ["v1"]          # app: only these vehicles (default: all)
 
 `render()` does no I/O: it returns {relative path: text}; passwords not given are generated (keep the
 `passwords.txt` it returns: `render` reuses it so that re-rendering does not lock existing clients out).
