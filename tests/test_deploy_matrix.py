@@ -408,7 +408,7 @@ def test_lab_matrix(lab: Lab) -> None:
 
 BRIDGE_CLIENT = """
 import sys
-from uwsimnet_zenoh.bridges.socket_bridge import SocketBridgeClient
+from uwsimnet_zenoh.bridges.socket_client import SocketBridgeClient
 c = SocketBridgeClient("127.0.0.1", int(sys.argv[1]))
 c.send(int(sys.argv[2]), b"bridged", 7)
 st = c.wait_status(7, "sent", timeout=10)
