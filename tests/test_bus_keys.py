@@ -92,3 +92,28 @@ def test_roundtrip(world, dev, leaf):
 @given(st.text(max_size=40))
 def test_parse_never_raises(s):
     parse(s)
+
+
+# -- the key-expression algebra deploy's rules are built with, against Zenoh's own ---------------------
+_chunk = st.sampled_from(["a", "b", "*", "**"])
+_kexpr = st.lists(_chunk, min_size=1, max_size=4).map(lambda cs: str(zenoh.KeyExpr.autocanonize("/".join(cs))))
+
+
+@given(_kexpr, _kexpr)
+def test_intersects_and_includes_are_zenohs(a, b):
+    from uwsimnet_gli.wire import includes, intersects
+
+    za, zb = zenoh.KeyExpr(a), zenoh.KeyExpr(b)
+    assert intersects(a, b) == za.intersects(zb), (a, b)
+    assert includes(a, b) == za.includes(zb), (a, b)
+
+
+def test_keys_are_built_from_the_uses_templates():
+    from uwsimnet_gli import wire
+
+    assert K.key(wire.TX, "m") == K.tx("m")
+    assert K.key(wire.POSE, vehicle="v") == K.pose("v")
+    assert K.key(wire.VEHICLE_CMD, vehicle="v") == K.vehicle_cmd("v")
+    assert wire.expand(wire.TX, ["a", "b"]) == ["modem/a/tx", "modem/b/tx"]
+    assert wire.expand(wire.VEHICLE_CMD) == ["vehicle/*/cmd"]
+    assert wire.expand(wire.DRIVER, ["a"], kind="real") == ["modem/a/driver/real"]

@@ -105,13 +105,18 @@ def test_acl_by_role() -> None:
     policies = {p["id"]: p for p in acl["policies"]}
     assert subjects["routers"] == {"id": "routers", "cert_common_names": ["broker", "robot1", "robot2"]}
     assert subjects["app-m1"] == {"id": "app-m1", "usernames": ["app1"], "cert_common_names": ["app1"]}
-    assert rules["app-m1/publish/in"]["key_exprs"] == ["uwsimnet/lab/modem/m1/tx", "uwsimnet/lab/pose/*"]
+    assert rules["app-m1/publish/in"]["key_exprs"] == [
+        "uwsimnet/lab/modem/m1/tx", "uwsimnet/lab/pose/*", "uwsimnet/lab/vehicle/*/cmd"]
     assert rules["app-m1/publish/in"]["flows"] == ["ingress"]
     assert rules["app-m1/publish/out"]["messages"] == ["declare_subscriber"]
+    # the app's publishers see the broker's wildcard subscribers (issue #18: modem/*/tx, pose/**)
+    assert {"uwsimnet/lab/modem/*/tx", "uwsimnet/lab/pose/**"} <= set(rules["app-m1/publish/out"]["key_exprs"])
+    assert "uwsimnet/lab/modem/*/info" in rules["app-m1/query/out2"]["key_exprs"]
+    assert rules["app-m1/query/out2"]["messages"] == ["declare_queryable"]
     assert rules["driver/token/in"]["key_exprs"] == ["uwsimnet/lab/modem/*/driver/real"]
     assert rules["broker/token/in"]["key_exprs"] == ["uwsimnet/lab/modem/*/driver/sim"]
     assert set(policies["visitor"]["rules"]) == {"visitor/subscribe/in", "visitor/subscribe/out"}
-    assert rules["visitor/subscribe/out"]["key_exprs"] == ["uwsimnet/lab/trace/**"]
+    assert rules["visitor/subscribe/out"]["key_exprs"] == ["uwsimnet/lab/trace/*"]
     # nobody but a driver may declare driver/real, nobody but the broker driver/sim
     for rid, r in rules.items():
         if "liveliness_token" in r["messages"] and r["flows"] == ["ingress"] and rid != "router-all":
@@ -216,3 +221,62 @@ def test_make_certs(tmp_path: Path) -> None:
     assert (tmp_path / "ca.pem").read_bytes() == ca
     bad = subprocess.run([str(script), str(tmp_path), "no/slash"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "bad name" in bad.stderr
+
+
+def test_every_session_command_uses_the_files_endpoints_and_names_them(tmp_path: Path) -> None:
+    """Issue #18: `uwsimnet vehicles/driver/emulate/bridge --zenoh-config FILE` dialled 127.0.0.1:7447
+    whatever the file said.  Now each connects to the file's endpoint and, when nothing listens there,
+    says so in one line (the endpoint and the file) with exit code 2; so does `gli`."""
+    import socket
+    import sys
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]                   # closed again: nothing listens there
+    conf = tmp_path / "c.json5"
+    conf.write_text(f'{{ mode: "client", connect: {{ endpoints: ["tcp/127.0.0.1:{port}"] }} }}\n')
+    uw = [sys.executable, "-m", "uwsimnet_zenoh.cli"]
+    cmds = [[*uw, "vehicles", "--vehicle", "v=0,0,0", "--world", "w"],
+            [*uw, "driver", "serial", "--device", "/dev/null", "--id", "m", "--world", "w"],
+            [*uw, "emulate", "serial", "--id", "m", "--world", "w"],
+            [*uw, "bridge", "socket", "--id", "m", "--world", "w"]]
+    procs = [subprocess.Popen([*c, "--zenoh-config", str(conf)], text=True, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE) for c in cmds]
+    procs.append(subprocess.Popen([sys.executable, "-m", "uwsimnet_gli.cli", "--zenoh-config", str(conf), "-w", "w",
+                                   "info"], text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE))
+    for p in procs:
+        out, err = p.communicate(timeout=60)
+        lines = err.strip().splitlines()
+        assert p.returncode == 2 and len(lines) == 1, (p.args, out, err)
+        assert f"cannot connect to tcp/127.0.0.1:{port}" in lines[0], lines[0]
+        if "uwsimnet_zenoh.cli" in p.args:
+            assert f"(from {conf})" in lines[0], lines[0]
+
+
+def test_deployment_page_holds_the_generated_roles_table() -> None:
+    page = (Path(__file__).resolve().parents[1] / "docs" / "deployment.md").read_text(encoding="utf-8")
+    assert deploy.roles_markdown() in page, "regenerate the table of docs/deployment.md: render.roles_markdown()"
+
+
+def test_client_files_carry_exactly_the_routers_rules_for_them() -> None:
+    """metadata.uwsimnet of each client file: what the commands check before declaring anything; the same
+    keys as the ingress rules of its group in the routers' access control."""
+    i = deploy.parse_inventory(inv(world="lab"))
+    app = deploy.client_config(i, "app1", deploy.make_passwords(i))["metadata"]["uwsimnet"]
+    assert app["identity"] == "app1" and app["role"] == "app" and app["world"] == "lab"
+    rules = {r["id"]: r for r in deploy.access_control(i)["rules"]}
+    for cap, keys in app["allow"].items():
+        assert [f"uwsimnet/lab/{k}" for k in keys] == rules[f"app-m1/{cap}/in"]["key_exprs"], cap
+    assert "modem/m1/tx" in app["allow"]["publish"] and "modem/m2/tx" not in app["allow"]["publish"]
+
+
+def test_vehicles_restrict_apps_only() -> None:
+    d = inv()
+    d["identities"][1]["vehicles"] = ["r1"]
+    i = deploy.parse_inventory(d)
+    acl = {r["id"]: r for r in deploy.access_control(i)["rules"]}
+    assert acl["app-m1-v.r1/publish/in"]["key_exprs"] == ["uwsimnet/*/modem/m1/tx", "uwsimnet/*/pose/r1",
+                                                          "uwsimnet/*/vehicle/r1/cmd"]
+    d["identities"][2]["vehicles"] = ["r1"]
+    with pytest.raises(deploy.InventoryError, match="vehicles only restrict apps"):
+        deploy.parse_inventory(d)

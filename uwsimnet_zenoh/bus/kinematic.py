@@ -46,7 +46,8 @@ class KinematicRunner:
         self._thread: threading.Thread | None = None
         self.clock = WorldClock(session, self.keys)
         self._pubs = {n: session.declare_publisher(self.keys.pose(n)) for n in self.vehicles}
-        self._sub = session.declare_subscriber(self.keys.vehicle_cmd_all, self._on_cmd)
+        # one subscriber per vehicle (not vehicle/*/cmd): an identity limited to its vehicles may run it
+        self._subs = [session.declare_subscriber(self.keys.vehicle_cmd(n), self._on_cmd) for n in self.vehicles]
         self._lock = threading.Lock()
 
     def start(self) -> KinematicRunner:
@@ -60,7 +61,7 @@ class KinematicRunner:
         if self._thread is not None:
             self._thread.join(5)
         self.clock.close()
-        for e in (self._sub, *self._pubs.values()):
+        for e in (*self._subs, *self._pubs.values()):
             with contextlib.suppress(Exception):
                 e.undeclare()
 

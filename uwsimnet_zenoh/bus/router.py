@@ -55,9 +55,10 @@ def _endpoints(raw: str, mode: str) -> list[str]:
 def run_router(args: Any) -> int:
 
     # --listen wins; else the file's listen endpoints (TLS-only configurations); else tcp/[::]:7447
-    listen = args.listen or ([] if args.config else [DEFAULT_ROUTER_LISTEN])
+    config = getattr(args, "zenoh_config", None) or getattr(args, "config", None)
+    listen = args.listen or ([] if config else [DEFAULT_ROUTER_LISTEN])
     try:
-        conf = make_config("router", listen=listen, connect=args.connect or (), config_file=args.config)
+        conf = make_config("router", listen=listen, connect=args.connect or (), config_file=config)
         if not listen:
             listen = _endpoints(conf.get_json("listen/endpoints"), "router") or [DEFAULT_ROUTER_LISTEN]
     except (BusError, ValueError) as e:

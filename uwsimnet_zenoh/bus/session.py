@@ -63,6 +63,63 @@ def make_config(mode: str, *, listen: Sequence[str] = (), connect: Sequence[str]
     return conf
 
 
+def file_endpoints(path: str) -> tuple[str, list[str], list[str]]:
+    """(mode, connect, listen) endpoints of a Zenoh configuration file (Zenoh's per-mode defaults
+    `{"router": [...], ...}` resolved for the file's mode); BusError if it does not load."""
+    try:
+        conf = zenoh.Config.from_file(path)
+        mode = json.loads(conf.get_json("mode")) or "client"
+        eps = {k: json.loads(conf.get_json(f"{k}/endpoints")) for k in ("connect", "listen")}
+    except (zenoh.ZError, ValueError) as e:
+        raise BusError(f"{path}: {' '.join(str(e).split())}") from None
+    out = {k: [str(e) for e in (v.get(mode) or [] if isinstance(v, dict) else v or [])] for k, v in eps.items()}
+    return str(mode), out["connect"], out["listen"]
+
+
+def access_of(conf: zenoh.Config) -> dict[str, Any] | None:
+    """The `metadata.uwsimnet` access section of a configuration rendered by `uwsimnet deploy render`."""
+    try:
+        v = json.loads(conf.get_json("metadata"))
+    except (zenoh.ZError, ValueError):
+        return None
+    a = v.get("uwsimnet") if isinstance(v, dict) else None
+    return a if isinstance(a, dict) else None
+
+
+def file_access(path: str | None) -> dict[str, Any] | None:
+    """`access_of` a configuration file (None without a file, or if it has no access section)."""
+    if not path:
+        return None
+    try:
+        return access_of(zenoh.Config.from_file(path))
+    except zenoh.ZError as e:
+        raise BusError(f"{path}: {' '.join(str(e).split())}") from None
+
+
+def client_config(connect: Sequence[str] = (), config_file: str | None = None, *,
+                  connect_timeout_ms: int | None = 3000) -> tuple[zenoh.Config, list[str]]:
+    """A client configuration and the endpoints it connects to: `connect` when given (replacing the
+    file's), else the file's `connect/endpoints`, else DEFAULT_ENDPOINT."""
+    endpoints = list(connect)
+    if not endpoints and config_file:
+        endpoints = file_endpoints(config_file)[1]
+    endpoints = endpoints or [DEFAULT_ENDPOINT]
+    return make_config("client", connect=endpoints, config_file=config_file,
+                       connect_timeout_ms=connect_timeout_ms), endpoints
+
+
+def open_client(connect: Sequence[str] = (), config_file: str | None = None, *,
+                connect_timeout_ms: int | None = 3000) -> zenoh.Session:
+    """A client session (the caller closes it); BusError `cannot connect to ENDPOINTS (why)` in one line,
+    naming the endpoints it tried (and the file they came from)."""
+    conf, endpoints = client_config(connect, config_file, connect_timeout_ms=connect_timeout_ms)
+    try:
+        return open_raw(conf)
+    except BusError as e:
+        src = f" (from {config_file})" if config_file and not connect else ""
+        raise BusError(f"cannot connect to {', '.join(endpoints)}{src}: {e}") from None
+
+
 def open_raw(conf: zenoh.Config) -> zenoh.Session:
     """`zenoh.open` with a readable error; the caller must close the session (prefer open_session)."""
     try:

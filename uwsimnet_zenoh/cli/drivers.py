@@ -23,17 +23,16 @@ from collections.abc import Iterator
 from typing import Any
 
 from ..errors import UserError
+from .zenoh_flags import add_zenoh_flags, check_access, client_session, configured_world
 
-DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+WORLD_HELP = "world name (default: the only one that answers)"
 
 
 def add_commands(sub: Any) -> None:
     """Register the subcommands on `uwsimnet`'s subparsers."""
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument("--id", required=True, help="the modem's dccommsId")
-        p.add_argument("--world", help="world name (default: the only one that answers)")
-        p.add_argument("--connect", action="append", help=f"Zenoh router (default {DEFAULT_CONNECT})")
-        p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 client configuration")
+        add_zenoh_flags(p, world=WORLD_HELP)
 
     d = sub.add_parser("driver", help="serve a modem id with a real modem (HIL swap)")
     dsub = d.add_subparsers(dest="driver", required=True)
@@ -95,9 +94,7 @@ def add_commands(sub: Any) -> None:
     k.add_argument("--max-speed", type=float, default=1.0, help="m/s")
     k.add_argument("--max-accel", type=float, help="m/s^2 (default: none)")
     k.add_argument("--rate", type=float, default=10.0, help="pose samples per second")
-    k.add_argument("--world", help="world name (default: the only one that answers)")
-    k.add_argument("--connect", action="append", help=f"Zenoh router (default {DEFAULT_CONNECT})")
-    k.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 client configuration")
+    add_zenoh_flags(k, world=WORLD_HELP)
     k.set_defaults(fn=cmd_vehicles)
 
 
@@ -107,26 +104,29 @@ def _log() -> None:
 
 @contextlib.contextmanager
 def _session(args: argparse.Namespace) -> Iterator[Any]:
-    from ..bus.session import BusError, make_config, open_session
-
-    try:
-        conf = make_config("client", connect=args.connect or [DEFAULT_CONNECT],
-                           config_file=args.zenoh_config, connect_timeout_ms=3000)
-        with open_session(conf) as s:
-            yield s
-    except BusError as e:
-        raise UserError(f"zenoh: {e}") from None
+    """--connect, else the endpoints of --zenoh-config / $ZENOH_CONFIG, else tcp/127.0.0.1:7447."""
+    with client_session(args) as s:
+        yield s
 
 
 def _world(s: Any, args: argparse.Namespace) -> str:
     from ..drivers.zenoh_backend import BackendError, discover_world
 
-    if args.world:
-        return args.world
+    world = configured_world(args)
+    if world:
+        return world
     try:
         return discover_world(s)
     except BackendError as e:
         raise UserError(str(e)) from None
+
+
+def _precheck(args: argparse.Namespace, program: str, modems: tuple[str, ...] = (),
+              vehicles: tuple[str, ...] = ()) -> None:
+    """The access check before any session is opened, when the world is known without asking."""
+    world = configured_world(args)
+    if world:
+        check_access(args, program, world, modems, vehicles)
 
 
 def _wait_for_signal() -> None:
@@ -147,8 +147,10 @@ def cmd_driver(args: argparse.Namespace) -> int:
     from ..drivers.zenoh_host import DriverHost
 
     _log()
+    _precheck(args, "driver", (args.id,))
     with _session(args) as s:
         world = _world(s, args)
+        check_access(args, "driver", world, (args.id,))
         if args.driver == "evologics":
             from ..drivers.evologics import EvoLogicsDriver
 
@@ -185,8 +187,10 @@ def _serve(args: argparse.Namespace, what: str, start: Any) -> int:
     from ..drivers.zenoh_backend import BackendError, ZenohBackend
 
     _log()
+    _precheck(args, "backend", (args.id,))
     with _session(args) as s:
         world = _world(s, args)
+        check_access(args, "backend", world, (args.id,))
         try:
             be = ZenohBackend(s, world, args.id)
         except BackendError as e:
@@ -290,8 +294,10 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
         except ValueError:
             raise UserError(f"--vehicle {spec!r}: expected NAME=X,Y,Z") from None
         vehicles.append(KinematicVehicle(name, p, max_speed=args.max_speed, max_accel=args.max_accel))
+    _precheck(args, "vehicles", vehicles=tuple(v.name for v in vehicles))
     with _session(args) as s:
         world = _world(s, args)
+        check_access(args, "vehicles", world, vehicles=tuple(v.name for v in vehicles))
         runner = KinematicRunner(s, world, vehicles, rate_hz=args.rate).start()
         try:
             print(f"uwsimnet: vehicles ready in {world}: {', '.join(v.name for v in vehicles)}", flush=True)

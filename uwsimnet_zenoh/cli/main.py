@@ -18,6 +18,7 @@ from ..app import ros2
 from ..app.virtual import load_scene_file, print_summary, run_virtual, show_metrics
 from ..errors import UserError, UwsimnetError
 from . import deploy, drivers, experiment, sweep, view
+from .zenoh_flags import add_zenoh_flags
 
 DEFAULT_VIEW_ROUTER = "tcp/127.0.0.1:7447"
 """Where the page of `run --view` connects when the run says nothing (the run's default listen endpoint)."""
@@ -132,12 +133,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="realtime: simulated seconds per wall second (default 1; >1 for runs without hardware)")
     r.add_argument("--seed", type=int, help="random seed (default: the scene's)")
     r.add_argument("--trace", help="JSONL trace file to write")
-    r.add_argument("--world", help="Zenoh world name (default: the scene's name)")
-    r.add_argument("--listen", action="append", help="Zenoh endpoint to listen on (realtime)")
-    r.add_argument("--connect", action="append", help="Zenoh router to connect to instead (realtime)")
-    r.add_argument("--zenoh-config", metavar="FILE",
-                   help="Zenoh JSON5 client/router configuration (TLS, user/password; default $ZENOH_CONFIG);"
-                        " --listen/--connect apply on top (realtime)")
+    add_zenoh_flags(r, listen=True, world="Zenoh world name (default: the scene's name)",
+                    listen_help="Zenoh endpoint to listen on (realtime; default: the --zenoh-config file's,"
+                                " else tcp/127.0.0.1:7447)",
+                    connect_help="Zenoh router to connect to instead (realtime)",
+                    config_help="Zenoh JSON5 client/router configuration (TLS, user/password; default"
+                                " $ZENOH_CONFIG): its mode and endpoints unless --listen/--connect (realtime)")
     r.add_argument("--channels", help="comma-separated channel ids this broker serves (realtime)")
     r.add_argument("--external-flows", metavar="NAMES",
                    help="flows (comma-separated, or 'all') run by external apps, not by the simulator (realtime)")
@@ -149,10 +150,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(fn=cmd_run, open=False)
 
     ro = sub.add_parser("router", help="a standalone Zenoh router for this machine (other machines connect)")
-    ro.add_argument("--listen", action="append",
-                    help="endpoint to listen on (default: the --config file's, else tcp/[::]:7447)")
-    ro.add_argument("--connect", action="append", help="another router to connect to (other machines)")
-    ro.add_argument("--config", help="Zenoh JSON5 configuration file (TLS, access control, ...)")
+    add_zenoh_flags(ro, listen=True, config_aliases=("--config",),
+                    listen_help="endpoint to listen on (default: the --config file's, else tcp/[::]:7447)",
+                    connect_help="another router to connect to (other machines; replaces the file's)",
+                    config_help="Zenoh JSON5 router configuration (TLS, access control, ...; not"
+                                " $ZENOH_CONFIG, which names clients' files)")
     ro.set_defaults(fn=cmd_router)
 
     v = sub.add_parser("validate", help="check a scene; exit 2 with file:line: message on errors")

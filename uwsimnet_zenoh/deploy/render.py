@@ -5,7 +5,9 @@ everything on a machine a client of its router, routers connected to each other 
 Every identity (a router, the broker, a driver, an app, a visitor) authenticates twice: a certificate
 whose CN is its name (mutual TLS) and a user/password (`transport/auth/usrpwd`).  Every router carries the
 same access-control list: what each role may put, subscribe, query, serve and declare on which keys of
-the key space (`ROLES`; the table is in docs/deployment.md).  Anything not allowed is denied.
+the key space, built from what the role's programs declare (`uwsimnet_gli.wire.USES`, `ROLES`; the
+table is in docs/deployment.md).  Anything not allowed is denied.  Each client file also carries its
+identity's rights (`metadata.uwsimnet`), which the commands check before declaring anything.
 
     uwsimnet deploy render INVENTORY.toml -o OUTDIR   # OUTDIR/<host>/... per machine
     uwsimnet deploy certs INVENTORY.toml TLSDIR       # the make-certs.sh command
@@ -30,6 +32,7 @@ Inventory (TOML, see deploy/inventory.example.toml):
     host = "broker"              # the machine it runs on (its config lands in OUTDIR/<host>/clients/)
     # router = "broker"          # the host whose router it connects to (default: host, over loopback)
     # modems = ["m1"]            # driver/app: only these modem ids (default: all)
+    # vehicles = ["v1"]          # app: only these vehicles (default: all)
 
 `render()` does no I/O: it returns {relative path: text}; passwords not given are generated (keep the
 `passwords.txt` it returns: `render` reuses it so that re-rendering does not lock existing clients out).
@@ -46,9 +49,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from uwsimnet_gli import wire
+
 from ..errors import UwsimnetError
 
-PREFIX = "uwsimnet"
+PREFIX = wire.PREFIX
 ROLE_NAMES = ("broker", "driver", "app", "visitor")
 ROUTER_ROLE = "router"
 TOPOLOGIES = ("star", "chain", "mesh")
@@ -60,84 +65,94 @@ ALL_MESSAGES = ("put", "delete", "declare_subscriber", "query", "declare_queryab
 
 @dataclass(frozen=True)
 class Role:
-    """What an identity may do, as key expressions relative to `uwsimnet/<world>/`.
+    """What an identity may do: the programs of `uwsimnet_gli.wire.USES` it runs (their declarations,
+    with `{m}` = the identity's modems and `{v}` its vehicles), and the commands that run them."""
 
-    publish   put/delete these keys (and learn that subscribers exist: publishers filter on it)
-    subscribe receive samples on these keys
-    query     get() on these keys and receive the replies
-    serve     declare queryables on these keys and reply
-    token     declare liveliness tokens on these keys
-    watch     liveliness subscribers and liveliness queries on these keys
-    """
-
-    publish: tuple[str, ...] = ()
-    subscribe: tuple[str, ...] = ()
-    query: tuple[str, ...] = ()
-    serve: tuple[str, ...] = ()
-    token: tuple[str, ...] = ()
-    watch: tuple[str, ...] = ()
+    programs: tuple[str, ...]
+    commands: tuple[str, ...]
     doc: str = ""
+
+    def uses(self, cap: str) -> tuple[str, ...]:
+        """The relative key templates of capability `cap` (publish, subscribe, ...) over its programs."""
+        return tuple(dict.fromkeys(k for p in self.programs for k in wire.USES[p].keys(cap)))
 
 
 ROLES: dict[str, Role] = {
-    "broker": Role(
-        publish=("modem/*/rx", "modem/*/status", "trace/**", "clock", "pose/*"),
-        subscribe=("modem/*/tx", "pose/*"),
-        query=("modem/*/info", "control/**"),
-        serve=("modem/*/info", "control/**"),
-        token=("modem/*/driver/sim",),
-        watch=("modem/*/driver/**",),
-        doc="the simulator: serves simulated modems, publishes rx/status/trace/clock and scene poses",
-    ),
-    "driver": Role(
-        publish=("modem/{m}/rx", "modem/{m}/status"),
-        subscribe=("modem/{m}/tx", "clock"),
-        serve=("modem/{m}/info",),
-        token=("modem/{m}/driver/real",),
-        watch=("modem/*/driver/**",),
-        doc="a real modem driver (HIL): takes a modem over with its driver/real token",
-    ),
-    "app": Role(
-        publish=("modem/{m}/tx", "pose/*"),
-        subscribe=("modem/{m}/rx", "modem/{m}/status", "trace/**", "clock", "pose/*"),
-        query=("modem/{m}/info", "control/**"),
-        watch=("modem/{m}/driver/**",),
-        doc="an application or robot: sends and receives frames, publishes vehicle poses, controls the run",
-    ),
-    "visitor": Role(
-        subscribe=("trace/**",),
-        doc="read-only: trace events, nothing else",
-    ),
+    "broker": Role(("broker",), ("uwsimnet run SCENE --clock realtime",),
+                   "the simulator: serves the scene's modems, publishes rx/status/trace/clock and scene poses"),
+    "driver": Role(("driver", "backend"),
+                   ("uwsimnet driver evologics/serial --id M", "uwsimnet emulate evologics/serial --id M",
+                    "uwsimnet bridge socket/mq --id M"),
+                   "a real modem (HIL) that takes its modems over, or an emulator/bridge on the modem's host"),
+    "app": Role(("modem", "listen", "info", "pose", "poses", "command", "clock", "control", "trace",
+                 "vehicles", "backend"),
+                ("gli send/flow M", "gli listen M", "gli info M", "gli pose V", "gli vehicle V", "gli control OP",
+                 "gli trace", "uwsimnet vehicles --vehicle V=X,Y,Z", "uwsimnet emulate ... --id M",
+                 "uwsimnet bridge ... --id M"),
+                "an application or robot: sends and receives on its modems, moves its vehicles, controls the run"),
+    "visitor": Role(("trace",), ("gli trace",), "read-only: trace events, nothing else"),
 }
-"""The access of every role (`{m}` = the identity's modems, or `*`).  Routers may do everything."""
+"""The access of every role.  Routers may do everything."""
 
 
-CAPABILITIES: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
-    # capability: (flow, messages) pairs, as measured on eclipse-zenoh 1.10 (tests/test_security.py)
-    "publish": (("ingress", ("put", "delete")),
-                ("egress", ("declare_subscriber",))),   # without it a declared Publisher sees no subscriber
-    "subscribe": (("ingress", ("declare_subscriber",)),
-                  ("egress", ("put", "delete"))),
-    "query": (("ingress", ("query",)),
-              ("egress", ("reply", "declare_queryable"))),  # a Querier needs to see the queryables
-    "serve": (("ingress", ("declare_queryable", "reply")),
-              ("egress", ("query",))),
-    "token": (("ingress", ("liveliness_token",)),),
-    "watch": (("ingress", ("declare_liveliness_subscriber", "liveliness_query")),
-              ("egress", ("liveliness_token",))),
+CAPABILITIES: dict[str, tuple[tuple[str, tuple[str, ...], str], ...]] = {
+    # capability: (flow, messages, on which keys) - "own": the role's keys; "seen": its keys plus every
+    # declaration of the other side (any program's) that intersects them.  Measured on eclipse-zenoh 1.10
+    # (tests/test_security.py, tests/test_deploy_matrix.py).
+    "publish": (("ingress", ("put", "delete"), "own"),
+                ("egress", ("declare_subscriber",), "seen")),  # a Publisher only sends where it sees subscribers
+    "subscribe": (("ingress", ("declare_subscriber",), "own"),
+                  ("egress", ("put", "delete"), "own")),
+    "query": (("ingress", ("query",), "own"),
+              ("egress", ("reply",), "own"),
+              ("egress", ("declare_queryable",), "seen")),   # a Querier needs to see the queryables
+    "serve": (("ingress", ("declare_queryable", "reply"), "own"),
+              ("egress", ("query",), "seen")),               # `gli info` asks modem/*/info
+    "token": (("ingress", ("liveliness_token",), "own"),),
+    "watch": (("ingress", ("declare_liveliness_subscriber", "liveliness_query"), "own"),
+              ("egress", ("liveliness_token",), "own")),
 }
-"""What each capability of a `Role` allows on the router, in which direction (ingress: from the client to
-its router; egress: from the router to the client)."""
+"""What each capability allows on the router, in which direction (ingress: from the client to its router;
+egress: from the router to the client), on which keys."""
+
+COUNTERPART = {"publish": "subscribe", "query": "serve", "serve": "query"}
+"""Whose declarations a capability must see: a publisher the subscribers, a querier the queryables, ..."""
 
 
-def role_rules(role: Role) -> list[tuple[str, str, tuple[str, ...], tuple[str, ...]]]:
+def role_keys(role: Role, cap: str, modems: Sequence[str] = (), vehicles: Sequence[str] = ()) -> list[str]:
+    """Relative key expressions of `cap` for an identity with these modems and vehicles (none: all)."""
+    return list(dict.fromkeys(k for t in role.uses(cap) for k in wire.expand(t, modems, vehicles)))
+
+
+def seen_keys(cap: str, own: Sequence[str]) -> list[str]:
+    """`own` plus every declaration of the counterpart capability, by any program, that intersects them
+    (the broker's `modem/*/tx` subscriber for an app publishing on `modem/a/tx`)."""
+    other = [k for u in wire.USES.values() for t in u.keys(COUNTERPART[cap]) for k in wire.expand(t)]
+    return list(dict.fromkeys([*own, *(o for o in other if any(wire.intersects(o, k) for k in own))]))
+
+
+def role_rules(role: Role, modems: Sequence[str] = (), vehicles: Sequence[str] = ()
+               ) -> list[tuple[str, str, tuple[str, ...], list[str]]]:
     """(capability, flow, messages, relative keys) for every capability the role uses."""
     out = []
-    for cap, pairs in CAPABILITIES.items():
-        keys = getattr(role, cap)
-        if keys:
-            out.extend((cap, flow, msgs, keys) for flow, msgs in pairs)
+    for cap, triples in CAPABILITIES.items():
+        own = role_keys(role, cap, modems, vehicles)
+        if own:
+            out.extend((cap, flow, msgs, own if which == "own" else seen_keys(cap, own))
+                       for flow, msgs, which in triples)
     return out
+
+
+def roles_markdown() -> str:
+    """The roles table of docs/deployment.md (tests/test_deploy.py checks the page holds this text)."""
+    caps = wire.CAPABILITIES
+    head = "| role | runs | " + " | ".join(caps) + " |\n|" + "---|" * (len(caps) + 2) + "\n"
+    rows = []
+    for name, role in ROLES.items():
+        cells = [", ".join(f"`{k}`" for k in role.uses(c)) or "-" for c in caps]
+        rows.append(f"| **{name}** | " + "<br>".join(f"`{c}`" for c in role.commands) + " | " + " | ".join(cells)
+                    + " |")
+    return head + "\n".join(rows) + "\n"
 
 
 class InventoryError(UwsimnetError, ValueError):
@@ -164,6 +179,7 @@ class Identity:
     host: str
     router: str
     modems: tuple[str, ...] = ()
+    vehicles: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -260,7 +276,7 @@ def parse_inventory(data: Mapping[str, Any], source: str = "<inventory>") -> Inv
         where = f"{source}: identities[{i}]"
         if not isinstance(d, dict):
             raise InventoryError(f"{where}: expected a table")
-        _keys(d, {"name", "role", "host", "router", "modems"}, where)
+        _keys(d, {"name", "role", "host", "router", "modems", "vehicles"}, where)
         name = _name(d.get("name"), where)
         where = f"{source}: identity {name}"
         if name in idents or name in hosts:
@@ -280,7 +296,13 @@ def parse_inventory(data: Mapping[str, Any], source: str = "<inventory>") -> Inv
                 raise InventoryError(f"{where}: modem id {m!r} must be one key chunk")
         if modems and role not in ("driver", "app"):
             raise InventoryError(f"{where}: modems only restrict drivers and apps")
-        idents[name] = Identity(name, role, host, router, modems)
+        vehicles = _strs(d["vehicles"], f"{where}.vehicles") if "vehicles" in d else ()
+        for v in vehicles:
+            if not _CHUNK.match(v):
+                raise InventoryError(f"{where}: vehicle name {v!r} must be one key chunk")
+        if vehicles and role != "app":
+            raise InventoryError(f"{where}: vehicles only restrict apps")
+        idents[name] = Identity(name, role, host, router, modems, vehicles)
     tls_dir = data.get("tls_dir", "/etc/uwsimnet/tls")
     etc_dir = data.get("etc_dir", "/etc/uwsimnet/{host}")
     if not isinstance(tls_dir, str) or not isinstance(etc_dir, str):
@@ -321,20 +343,13 @@ def router_links(inv: Inventory) -> dict[str, tuple[str, ...]]:
 
 # -- access control -------------------------------------------------------------------------------
 
-def _world_keys(inv: Inventory, rel: Sequence[str], modems: Sequence[str]) -> list[str]:
-    base = f"{PREFIX}/{inv.world}"
-    out: list[str] = []
-    for k in rel:
-        for m in (modems or ("*",)) if "{m}" in k else ("",):
-            key = f"{base}/{k.replace('{m}', m)}"
-            if key not in out:
-                out.append(key)
-    return out
+def _world_keys(inv: Inventory, rel: Sequence[str]) -> list[str]:
+    return [f"{PREFIX}/{inv.world}/{k}" for k in rel]
 
 
 def access_control(inv: Inventory) -> dict[str, Any]:
     """The `access_control` section every router carries: default deny, one policy per group of identities
-    that have the same rights (a role, or a role restricted to given modems), one for the routers."""
+    that have the same rights (a role, or a role restricted to given modems/vehicles), one for the routers."""
     rules: list[dict[str, Any]] = [{
         "id": "router-all", "messages": list(ALL_MESSAGES), "flows": ["ingress", "egress"],
         "permission": "allow", "key_exprs": ["**"]}]
@@ -342,16 +357,19 @@ def access_control(inv: Inventory) -> dict[str, Any]:
     # (usrpwd authenticates the connecting side to the accepting side only), but both sides see the CN
     subjects: list[dict[str, Any]] = [{"id": "routers", "cert_common_names": sorted(inv.hosts)}]
     policies: list[dict[str, Any]] = [{"id": "routers", "rules": ["router-all"], "subjects": ["routers"]}]
-    groups: dict[tuple[str, tuple[str, ...]], list[str]] = {}
+    groups: dict[tuple[str, tuple[str, ...], tuple[str, ...]], list[str]] = {}
     for ident in inv.identities.values():
-        groups.setdefault((ident.role, ident.modems), []).append(ident.name)
-    for (role_name, modems), names in groups.items():
-        gid = role_name + ("" if not modems else "-" + "-".join(modems))
+        groups.setdefault((ident.role, ident.modems, ident.vehicles), []).append(ident.name)
+    for (role_name, modems, vehicles), names in groups.items():
+        gid = role_name + "".join("-" + x for x in (*modems, *(f"v.{v}" for v in vehicles)))
         rule_ids = []
-        for cap, flow, msgs, rel in role_rules(ROLES[role_name]):
-            rid = f"{gid}/{cap}/{'in' if flow == 'ingress' else 'out'}"
+        seen: dict[str, int] = {}
+        for cap, flow, msgs, rel in role_rules(ROLES[role_name], modems, vehicles):
+            base = f"{gid}/{cap}/{'in' if flow == 'ingress' else 'out'}"
+            seen[base] = seen.get(base, 0) + 1
+            rid = base if seen[base] == 1 else f"{base}{seen[base]}"
             rules.append({"id": rid, "messages": list(msgs), "flows": [flow], "permission": "allow",
-                          "key_exprs": _world_keys(inv, rel, modems)})
+                          "key_exprs": _world_keys(inv, rel)})
             rule_ids.append(rid)
         # user name AND certificate CN must both be of the group (the fields of one subject are ANDed)
         subjects.append({"id": gid, "usernames": sorted(names), "cert_common_names": sorted(names)})
@@ -397,8 +415,13 @@ def client_config(inv: Inventory, name: str, passwords: Mapping[str, str]) -> di
     """The configuration of identity `name` (a client of its router)."""
     ident = inv.identities[name]
     local = ident.router == ident.host
+    role = ROLES[ident.role]
+    allow = {cap: keys for cap in wire.CAPABILITIES
+             if (keys := role_keys(role, cap, ident.modems, ident.vehicles))}
     return {
         "mode": "client",
+        # what the routers allow it (wire.ACCESS_KEY): commands refuse at once what would be dropped
+        "metadata": {wire.ACCESS_KEY: {"identity": name, "role": ident.role, "world": inv.world, "allow": allow}},
         "connect": {"endpoints": [inv.endpoint(ident.router, local=local)]},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": {

@@ -8,10 +8,12 @@
     gli pose bravo 120 0 10 --velocity 1 0 0 --rate 10
     gli flow --src alpha-modem --dst 2 --size 32 --interval 1 --name alpha-to-bravo
     gli control pause ; gli control move vehicle='"bravo"' p='[10,0,5]'
+    gli vehicle bravo waypoint='[10,0,5]'          # a kinematic vehicle (`uwsimnet vehicles`)
+    gli trace --count 10                           # trace events (what a visitor may read)
 
-Common options: -e/--connect ENDPOINT (default tcp/127.0.0.1:7447), -w/--world NAME (default: the only
-world that answers), --config FILE (a Zenoh JSON5 client configuration, default $ZENOH_CONFIG; -e replaces
-its endpoints).
+Common options (as `uwsimnet`'s): -e/--connect ENDPOINT (default: the configuration file's, else
+tcp/127.0.0.1:7447), -w/--world NAME (default: the only world that answers), --zenoh-config FILE (alias
+--config; a Zenoh JSON5 client configuration, default $ZENOH_CONFIG; --connect replaces its endpoints).
 """
 
 from __future__ import annotations
@@ -28,15 +30,31 @@ from typing import Any
 
 import zenoh
 
-from uwsimnet_gli.world import GliError, World, load_config
+from uwsimnet_gli.world import GliError, World, config_access, load_config
 
 from .records import Frame, Status, read_map, read_rx, read_status
-from .wire import DEFAULT_ENDPOINT
+from .wire import DEFAULT_ENDPOINT, access_refusals, refusal_message
 
 
-def _world(args: argparse.Namespace) -> World:
+def _world(args: argparse.Namespace, *checks: tuple[Any, ...]) -> World:
+    """The world of the options; `checks` = (program, modems, vehicles) the command will run: refused
+    at once, before any session is opened, when the configuration's access section does not allow it."""
     conf = load_config(args.config, args.connect)
-    return World(args.world, connect=args.connect or DEFAULT_ENDPOINT, config=conf)
+    access = config_access(conf)
+    name = args.world or (access or {}).get("world")
+    if access is not None and isinstance(name, str) and name != "*":
+        for program, modems, vehicles in checks:
+            refused = access_refusals(access, program, name, modems, vehicles)
+            if refused:
+                raise GliError(refusal_message(access, refused))
+    world = World(args.world, connect=args.connect or DEFAULT_ENDPOINT, config=conf)
+    try:
+        for program, modems, vehicles in checks:        # the world may have been discovered
+            world.check(program, modems, vehicles)
+    except BaseException:
+        world.close()
+        raise
+    return world
 
 
 def _show(data: bytes) -> str:
@@ -60,12 +78,12 @@ def _frame_json(f: Frame) -> str:
 
 # -- commands -----------------------------------------------------------------------------------
 def cmd_send(args: argparse.Namespace) -> int:
-    with _world(args) as world:
+    with _world(args, ("modem", [args.modem], ())) as world:
         modem = world.modem(args.modem)
         kind = modem.wait_kind(timeout=args.timeout)
         if kind is None:
-            print(f"warning: nobody serves {args.modem!r} in world {world.name!r} (no driver token)",
-                  file=sys.stderr)
+            print(f"warning: nobody serves {args.modem!r} in world {world.name!r} (no driver token: no broker"
+                  " or driver serves it, or this identity may not use it)", file=sys.stderr)
         key = world.keys.modem(args.modem, "tx")
         print(f"Declaring Publisher on '{key}' ({kind or 'no driver'})...")
         bad = 0
@@ -95,7 +113,7 @@ def cmd_send(args: argparse.Namespace) -> int:
 
 
 def cmd_listen(args: argparse.Namespace) -> int:
-    with _world(args) as world:
+    with _world(args, ("listen", args.modem or ["*"], ())) as world:
         s = world.session
         mods = args.modem or ["*"]
         n = 0
@@ -145,11 +163,14 @@ def cmd_listen(args: argparse.Namespace) -> int:
         finally:
             for sub in subs:
                 sub.undeclare()
+    if args.count is not None and n < args.count:
+        print(f"{n} of {args.count} frame(s) within {args.timeout:g} s", file=sys.stderr)
+        return 1
     return 0
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    with _world(args) as world:
+    with _world(args, ("info", [args.modem or "*"], ())) as world:
         key = world.keys.modem(args.modem or "*", "info")
         out = []
         for r in world.session.get(key, timeout=args.timeout):
@@ -179,7 +200,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_pose(args: argparse.Namespace) -> int:
     p0 = (args.x, args.y, args.z)
     v = tuple(args.velocity) if args.velocity else None
-    with _world(args) as world:
+    with _world(args, ("pose", (), [args.vehicle])) as world:
         key = world.keys.pose(args.vehicle)
         print(f"Declaring Publisher on '{key}'...", file=sys.stderr)
         if not args.rate:
@@ -246,7 +267,7 @@ def run_flow(world: World, src: str, dst: int, size: int, interval: float, *, ar
 
 def cmd_flow(args: argparse.Namespace) -> int:
     interval = args.interval if args.interval else 1.0 / args.rate
-    with _world(args) as world:
+    with _world(args, ("modem", [args.src], ()), ("clock", (), ())) as world:
         until = f" to {args.stop:g}" if args.stop is not None else ""
         print(f"flow {args.name or '-'}: {args.src} -> {args.dst}, {args.size} B every {interval:g} s"
               f" ({args.arrival}) from t={args.start:g}{until}", file=sys.stderr)
@@ -268,13 +289,8 @@ def _json_value(s: str) -> Any:
 
 
 def cmd_control(args: argparse.Namespace) -> int:
-    req: dict[str, Any] = {}
-    for item in args.args:
-        k, sep, v = item.partition("=")
-        if not sep:
-            raise GliError(f"expected KEY=VALUE, got {item!r}")
-        req[k] = _json_value(v)
-    with _world(args) as world:
+    req = _kv(args.args)
+    with _world(args, ("control", (), ())) as world:
         replies = world.control_all(args.op, timeout=args.timeout, **req)
     if not replies:
         print(f"control/{args.op}: no reply", file=sys.stderr)
@@ -284,15 +300,68 @@ def cmd_control(args: argparse.Namespace) -> int:
     return 0 if all(r.get("ok") for r in replies) else 1
 
 
+def _kv(items: Sequence[str]) -> dict[str, Any]:
+    req: dict[str, Any] = {}
+    for item in items:
+        k, sep, v = item.partition("=")
+        if not sep:
+            raise GliError(f"expected KEY=VALUE, got {item!r}")
+        req[k] = _json_value(v)
+    return req
+
+
+def cmd_vehicle(args: argparse.Namespace) -> int:
+    cmd = _kv(args.args)
+    with _world(args, ("command", (), [args.vehicle])) as world:
+        print(f"Declaring Publisher on '{world.keys.vehicle_cmd(args.vehicle)}'...", file=sys.stderr)
+        world.command_vehicle(args.vehicle, **cmd)
+        print(f"Putting command {json.dumps(cmd)}")
+        time.sleep(0.05)            # let the put leave before the session closes
+    return 0
+
+
+def cmd_trace(args: argparse.Namespace) -> int:
+    with _world(args, ("trace", (), ())) as world:
+        q: queue.Queue = queue.Queue()
+        key = world.keys.trace_all
+        print(f"Declaring Subscriber on '{key}'...", file=sys.stderr)
+        sub = world.session.declare_subscriber(key, lambda s: q.put(s.payload.to_bytes()))
+        n = 0
+        deadline = None if args.timeout is None else time.monotonic() + args.timeout
+        try:
+            while args.count is None or n < args.count:
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    break
+                try:
+                    raw = q.get(timeout=0.2 if left is None else min(0.2, left))
+                except queue.Empty:
+                    continue
+                rec = read_map(raw)
+                if isinstance(rec, dict):
+                    n += 1
+                    print(json.dumps(rec, default=lambda b: b.hex() if isinstance(b, bytes) else str(b)),
+                          flush=True)
+        finally:
+            sub.undeclare()
+    if n == 0:
+        print(f"no trace event on '{key}'", file=sys.stderr)
+        return 1
+    return 0
+
+
 # -- parser -------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="gli", description="uwsimnet modems over Zenoh: send, listen, info,"
                                 " pose, flow, control")
-    p.add_argument("-e", "--connect", action="append", help=f"router endpoint (default {DEFAULT_ENDPOINT})")
+    # the Zenoh options of `uwsimnet` (uwsimnet_zenoh/cli/zenoh_flags.py), with the same meaning
+    p.add_argument("-e", "--connect", action="append", metavar="ENDPOINT",
+                   help=f"Zenoh router to connect to (repeat; default: the --zenoh-config file's, else"
+                        f" {DEFAULT_ENDPOINT})")
     p.add_argument("-w", "--world", help="world name (default: the only one that answers)")
-    p.add_argument("--config", "--zenoh-config", dest="config",
-                   help="Zenoh JSON5 client configuration file (TLS, user/password; default $ZENOH_CONFIG);"
-                        " -e replaces its endpoints")
+    p.add_argument("--zenoh-config", "--config", dest="config", metavar="FILE",
+                   help="Zenoh JSON5 client configuration (TLS, user/password; default $ZENOH_CONFIG);"
+                        " its endpoints unless --connect is given")
     sub = p.add_subparsers(dest="cmd", required=True)
 
     s = sub.add_parser("send", help="send frames from a modem")
@@ -356,6 +425,16 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("args", nargs="*", help="KEY=VALUE (VALUE parsed as JSON when it is JSON)")
     c.add_argument("--timeout", type=float, default=2.0)
     c.set_defaults(fn=cmd_control)
+
+    ve = sub.add_parser("vehicle", help="command a kinematic vehicle (`uwsimnet vehicles`): waypoint, v, ...")
+    ve.add_argument("vehicle")
+    ve.add_argument("args", nargs="+", help="KEY=VALUE (VALUE parsed as JSON), e.g. waypoint=[10,0,5]")
+    ve.set_defaults(fn=cmd_vehicle)
+
+    tr = sub.add_parser("trace", help="print trace events as the broker publishes them (JSON lines)")
+    tr.add_argument("--count", type=int, help="stop after this many events")
+    tr.add_argument("--timeout", type=float, help="stop after this many seconds")
+    tr.set_defaults(fn=cmd_trace)
     return p
 
 

@@ -83,24 +83,32 @@ class Keys:
         return f"Keys({self.world!r})"
 
     # -- concrete keys ---------------------------------------------------------------------------
+    def key(self, template: str, modem: str | None = None, vehicle: str | None = None) -> str:
+        """The key of a template of `USES` (`TX`, `POSE`, ...); `modem="*"` for every modem."""
+        if modem is not None:
+            template = template.replace("{m}", modem if modem == "*" else check_chunk(modem, "modem id"))
+        if vehicle is not None:
+            template = template.replace("{v}", check_chunk(vehicle, "vehicle"))
+        return f"{self.base}/{template}"
+
     def pose(self, vehicle: str) -> str:
-        return f"{self.base}/pose/{check_chunk(vehicle, 'vehicle')}"
+        return self.key(POSE, vehicle=vehicle)
 
     def modem(self, dev: str, leaf: str) -> str:
         """`dev`: a modem id, or `*` for every modem (a selector for subscriptions and queries)."""
-        return f"{self.base}/modem/{dev if dev == '*' else check_chunk(dev, 'modem id')}/{leaf}"
+        return self.key(f"modem/{{m}}/{leaf}", dev)
 
     def tx(self, dev: str) -> str:
-        return self.modem(dev, "tx")
+        return self.key(TX, dev)
 
     def rx(self, dev: str) -> str:
-        return self.modem(dev, "rx")
+        return self.key(RX, dev)
 
     def status(self, dev: str) -> str:
-        return self.modem(dev, "status")
+        return self.key(STATUS, dev)
 
     def info(self, dev: str) -> str:
-        return self.modem(dev, "info")
+        return self.key(INFO, dev)
 
     def driver(self, dev: str, kind: str) -> str:
         if kind not in DRIVER_KINDS:
@@ -112,34 +120,34 @@ class Keys:
 
     @property
     def clock(self) -> str:
-        return f"{self.base}/clock"
+        return self.key(CLOCK)
 
     def control(self, op: str) -> str:
         return f"{self.base}/control/{check_chunk(op, 'control operation')}"
 
     def vehicle_cmd(self, vehicle: str) -> str:
-        return f"{self.base}/vehicle/{check_chunk(vehicle, 'vehicle')}/cmd"
+        return self.key(VEHICLE_CMD, vehicle=vehicle)
 
     # -- wildcards (what the broker and generic clients subscribe to) ----------------------------
     @property
     def pose_all(self) -> str:
-        return f"{self.base}/pose/**"
+        return self.key(POSE_ALL)
 
     @property
     def tx_all(self) -> str:
-        return f"{self.base}/modem/*/tx"
+        return self.key(TX, "*")
 
     @property
     def rx_all(self) -> str:
-        return f"{self.base}/modem/*/rx"
+        return self.key(RX, "*")
 
     @property
     def status_all(self) -> str:
-        return f"{self.base}/modem/*/status"
+        return self.key(STATUS, "*")
 
     @property
     def info_all(self) -> str:
-        return f"{self.base}/modem/*/info"
+        return self.key(INFO, "*")
 
     def drivers(self, kind: str = "*", dev: str = "*") -> str:
         """Liveliness key expression for drivers: all kinds and modems by default."""
@@ -151,15 +159,15 @@ class Keys:
 
     @property
     def trace_all(self) -> str:
-        return f"{self.base}/trace/*"
+        return self.key(TRACE)
 
     @property
     def control_all(self) -> str:
-        return f"{self.base}/control/**"
+        return self.key(CONTROL_ALL)
 
     @property
     def vehicle_cmd_all(self) -> str:
-        return f"{self.base}/vehicle/*/cmd"
+        return self.key(VEHICLE_CMD.replace("{v}", "*"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,6 +205,156 @@ def parse(key: object) -> Key | None:
     if kind == "vehicle" and len(rest) == 2 and rest[1] == "cmd":
         return Key(world, "vehicle", rest[0], "cmd")
     return None
+
+
+# == who declares what: the access each program needs ==================================================
+# Key expressions relative to `uwsimnet/<world>/`.  `{m}` stands for the modem ids a program is run for
+# (`--id`, `gli send <modem>`, ...), `{v}` for its vehicle names; a `*` in a template is a wildcard the
+# program itself declares (the broker subscribes `modem/*/tx` for every modem).  `Keys` builds every key
+# from these templates, and deploy/render.py turns `USES` into the access-control rules of each role, so
+# a rendered rule allows exactly what the programs declare (tests/test_deploy.py checks the declarations
+# of the real programs against it).
+
+POSE, POSE_ALL = "pose/{v}", "pose/**"
+TX, RX, STATUS, INFO = "modem/{m}/tx", "modem/{m}/rx", "modem/{m}/status", "modem/{m}/info"
+DRIVER = "modem/{m}/driver/{kind}"
+TRACE = "trace/*"
+CLOCK = "clock"
+CONTROL, CONTROL_ALL = "control/*", "control/**"
+VEHICLE_CMD = "vehicle/{v}/cmd"
+CAPABILITIES = ("publish", "subscribe", "query", "serve", "token", "watch")
+Names = list[str] | tuple[str, ...]
+"""Modem ids or vehicle names (the wire imports msgpack and the stdlib's basics only)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Uses:
+    """What one program declares, relative to `uwsimnet/<world>/`: publish (publishers, puts), subscribe
+    (subscribers), query (get), serve (queryables and their replies), token (liveliness tokens), watch
+    (liveliness subscribers and queries)."""
+
+    publish: tuple[str, ...] = ()
+    subscribe: tuple[str, ...] = ()
+    query: tuple[str, ...] = ()
+    serve: tuple[str, ...] = ()
+    token: tuple[str, ...] = ()
+    watch: tuple[str, ...] = ()
+    doc: str = ""
+
+    def keys(self, cap: str) -> tuple[str, ...]:
+        return getattr(self, cap)
+
+
+def _all(t: str) -> str:
+    return t.replace("{m}", "*").replace("{v}", "*")
+
+
+USES: dict[str, Uses] = {
+    "broker": Uses(
+        publish=(_all(RX), _all(STATUS), TRACE, CLOCK, _all(POSE)),
+        subscribe=(_all(TX), POSE_ALL),
+        serve=(_all(INFO), CONTROL_ALL),
+        token=(_all(DRIVER).replace("{kind}", "sim"),),
+        watch=(_all(DRIVER).replace("{kind}", "real"),),
+        doc="`uwsimnet run --clock realtime` (bus/broker.py): every simulated modem of the scene"),
+    "driver": Uses(
+        publish=(RX, STATUS), subscribe=(TX, CLOCK), query=(INFO,), serve=(INFO,),
+        token=(DRIVER.replace("{kind}", "real"),), watch=(DRIVER.replace("{kind}", "sim"),),
+        doc="`uwsimnet driver evologics|serial --id {m}` (drivers/zenoh_host.py): a real modem serves {m}"),
+    "backend": Uses(
+        publish=(TX,), subscribe=(RX, STATUS, TRACE, CLOCK), query=(INFO,),
+        doc="`uwsimnet emulate ...|bridge ... --id {m}` (drivers/zenoh_backend.py): a simulated modem"
+            " made to look like a device"),
+    "vehicles": Uses(
+        publish=(POSE,), subscribe=(VEHICLE_CMD, CLOCK),
+        doc="`uwsimnet vehicles --vehicle {v}=...` (bus/kinematic.py): kinematic vehicles"),
+    "modem": Uses(
+        publish=(TX,), subscribe=(RX, STATUS), watch=(DRIVER.replace("{kind}", "*"),),
+        doc="`gli send|flow {m}`, `Modem(world, {m})`: send frames, statuses, who serves it"),
+    "listen": Uses(subscribe=(RX, STATUS), doc="`gli listen [--status] {m}`"),
+    "info": Uses(query=(INFO,), doc="`gli info {m}`, `Modem.info()`"),
+    "pose": Uses(publish=(POSE,), doc="`gli pose {v} ...`, `World.publish_pose({v}, ...)`"),
+    "poses": Uses(subscribe=(_all(POSE),), doc="pose subscribers (`hil_apps` follows the leader's pose)"),
+    "command": Uses(publish=(VEHICLE_CMD,), doc="`gli vehicle {v} KEY=VALUE...`: vehicle commands"),
+    "clock": Uses(subscribe=(CLOCK,), doc="`World.clock()`, `gli flow`: simulation time"),
+    "control": Uses(query=(CONTROL,), doc="`gli control OP ...`, `World.control(OP)`"),
+    "trace": Uses(subscribe=(TRACE,), doc="`gli trace`: trace events of every channel"),
+}
+"""Per program, what it declares on the key space (the rules of deploy/render.py are built from it)."""
+
+
+def expand(template: str, modems: Names = (), vehicles: Names = (),
+           kind: str = "*") -> list[str]:
+    """The key expressions of a template for given modem ids and vehicle names (none: `*`)."""
+    out = [template.replace("{kind}", kind)]
+    for ph, names in (("{m}", modems), ("{v}", vehicles)):
+        out = [k.replace(ph, n) for k in out for n in (names or ("*",))] if any(ph in k for k in out) else out
+    return list(dict.fromkeys(out))
+
+
+def intersects(a: str, b: str) -> bool:
+    """Whether key expressions `a` and `b` (chunks, `*` = one chunk, `**` = any number) share a key,
+    as `zenoh.KeyExpr.intersects` (checked against it in tests/test_bus_keys.py)."""
+    return _ix(tuple(a.split("/")), tuple(b.split("/")))
+
+
+def _ix(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
+    if not a or not b:
+        return all(c == "**" for c in a + b)
+    if a[0] == "**":
+        return _ix(a[1:], b) or _ix(a, b[1:])
+    if b[0] == "**":
+        return _ix(a, b[1:]) or _ix(a[1:], b)
+    return (a[0] == b[0] or a[0] == "*" or b[0] == "*") and _ix(a[1:], b[1:])
+
+
+def includes(a: str, b: str) -> bool:
+    """Whether every key of `b` is a key of `a` (how an ACL rule's key expression matches a message)."""
+    return _inc(tuple(a.split("/")), tuple(b.split("/")))
+
+
+def _inc(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
+    if not a:
+        return not b
+    if a[0] == "**":
+        return _inc(a[1:], b) or (bool(b) and _inc(a, b[1:]))
+    if not b or b[0] == "**":
+        return False
+    return (a[0] == "*" or (a[0] == b[0] and b[0] != "*")) and _inc(a[1:], b[1:])
+
+
+ACCESS_KEY = "uwsimnet"
+"""Under `metadata` of a client configuration rendered by `uwsimnet deploy render`: the identity, its
+role, its world and what the routers' access control allows it, as {"identity", "role", "world",
+"allow": {capability: [relative key expressions]}}.  Commands check what they are about to declare
+against it, so that an action the routers would drop silently is refused at once, in one line."""
+
+
+def access_refusals(access: Any, program: str, world: str, modems: Names = (),
+                    vehicles: Names = ()) -> list[str]:
+    """What `program` (a key of USES) run in `world` for these modems/vehicles would declare that `access`
+    does not allow, as `"<capability> <key>"` items; [] when `access` is None (no access control known)."""
+    if not isinstance(access, dict):
+        return []
+    allow = access.get("allow") if isinstance(access.get("allow"), dict) else {}
+    aw = access.get("world", "*")
+    out = []
+    for cap in CAPABILITIES:
+        for t in USES[program].keys(cap):
+            for k in expand(t, modems, vehicles):
+                granted = allow.get(cap) or ()
+                if not (aw in ("*", world) and any(isinstance(a, str) and includes(a, k) for a in granted)):
+                    out.append(f"{cap} {PREFIX}/{world}/{k}")
+    return out
+
+
+def refusal_message(access: Any, refused: Names) -> str:
+    """One line: who may not do what (the first refusal, and how many more)."""
+    a = access if isinstance(access, dict) else {}
+    who = f"{a.get('identity', '?')} (role {a.get('role', '?')})"
+    more = f" and {len(refused) - 1} more" if len(refused) > 1 else ""
+    return (f"{who} may not {refused[0]}{more}: the deployment's access control refuses it"
+            " (docs/deployment.md, roles)")
 
 
 def modem_id(key: object, leaf: str) -> str | None:

@@ -12,7 +12,18 @@ from typing import Any
 import zenoh
 
 from .records import read_map
-from .wire import DEFAULT_ENDPOINT, PREFIX, Keys, check_chunk, encode_pose, pack
+from .wire import (
+    ACCESS_KEY,
+    DEFAULT_ENDPOINT,
+    PREFIX,
+    Keys,
+    access_refusals,
+    check_chunk,
+    encode_pose,
+    is_chunk,
+    pack,
+    refusal_message,
+)
 
 
 class GliError(RuntimeError):
@@ -50,6 +61,27 @@ def load_config(config_file: str | None = None, connect: str | Sequence[str] | N
     return conf
 
 
+def config_endpoints(conf: zenoh.Config) -> list[str]:
+    """The connect endpoints of a client configuration (what an error message names)."""
+    try:
+        v = json.loads(conf.get_json("connect/endpoints"))
+    except (zenoh.ZError, ValueError):
+        return []
+    if isinstance(v, dict):
+        v = v.get("client") or []
+    return [str(e) for e in v] if isinstance(v, list) else []
+
+
+def config_access(conf: zenoh.Config) -> dict[str, Any] | None:
+    """The access section (`metadata.uwsimnet`) of a configuration rendered by `uwsimnet deploy render`."""
+    try:
+        v = json.loads(conf.get_json("metadata"))
+    except (zenoh.ZError, ValueError):
+        return None
+    a = v.get(ACCESS_KEY) if isinstance(v, dict) else None
+    return a if isinstance(a, dict) else None
+
+
 def discover_worlds(session: zenoh.Session, timeout: float = 2.0) -> list[str]:
     """Names of the worlds whose brokers answer `uwsimnet/*/control/state`."""
     found = set()
@@ -78,18 +110,24 @@ class World:
                  config: zenoh.Config | None = None, session: zenoh.Session | None = None,
                  timeout: float = 2.0) -> None:
         self._own = session is None
+        self.access: dict[str, Any] | None = None
+        """What the deployment allows this identity (`metadata.uwsimnet` of a rendered configuration)."""
         if session is None:
+            # no config: $ZENOH_CONFIG if set (connect replaces its endpoints), else client_config()
+            conf = config if config is not None else load_config(None, connect)
+            self.access = config_access(conf)
             try:
-                # no config: $ZENOH_CONFIG if set (connect replaces its endpoints), else client_config()
-                session = zenoh.open(config if config is not None else load_config(None, connect))
+                session = zenoh.open(conf)
             except zenoh.ZError as e:
-                connect = connect or DEFAULT_ENDPOINT
-                where = connect if isinstance(connect, str) else ", ".join(connect)
+                where = ", ".join(config_endpoints(conf)) or "the configured endpoints"
                 why = " ".join(str(e).split()).split(" at /")[0]            # no Rust source locations
                 raise GliError(f"cannot connect to {where}: {why} (is `uwsimnet run` or `uwsimnet router`"
-                               " running there?)") from None
+                               " running there, and are the TLS files and password right?)") from None
         self.session = session
         try:
+            aw = (self.access or {}).get("world")
+            if name is None and isinstance(aw, str) and is_chunk(aw):
+                name = aw                   # the deployment's world (discovery would be refused)
             if name is None:
                 worlds = discover_worlds(session, timeout)
                 if len(worlds) != 1:
@@ -103,6 +141,7 @@ class World:
         self.keys = Keys(self.name)
         self._modems: list[Any] = []
         self._pose_pubs: dict[str, Any] = {}
+        self._cmd_pubs: dict[str, Any] = {}
         self._clock_sub: Any = None
         self._clock: dict[str, Any] | None = None
         self._clock_cond = threading.Condition()
@@ -122,7 +161,7 @@ class World:
         self._closed = True
         for m in list(self._modems):
             m.close()
-        for p in self._pose_pubs.values():
+        for p in (*self._pose_pubs.values(), *self._cmd_pubs.values()):
             _undeclare(p)
         _undeclare(self._clock_sub)
         self._close_session()
@@ -131,6 +170,13 @@ class World:
         if self._own:
             with contextlib.suppress(Exception):
                 self.session.close()
+
+    def check(self, program: str, modems: Sequence[str] = (), vehicles: Sequence[str] = ()) -> None:
+        """GliError (one line) if this identity's access control would drop what `program` (a key of
+        `uwsimnet_gli.wire.USES`: modem, listen, info, pose, command, control, trace, ...) declares."""
+        refused = access_refusals(self.access, program, self.name, modems, vehicles)
+        if refused:
+            raise GliError(refusal_message(self.access, refused))
 
     # -- modems ----------------------------------------------------------------------------------
     def modem(self, dev: str, **kw: Any):
@@ -188,6 +234,14 @@ class World:
             if r.get("ok"):
                 return r
         raise GliError(f"control/{op}: {replies[0].get('error', 'refused')}")
+
+    def command_vehicle(self, vehicle: str, **command: Any) -> None:
+        """Send a command to a kinematic vehicle (`uwsimnet vehicles`, docs/runtime.md) on
+        `vehicle/<name>/cmd`: e.g. `waypoint=[10, 0, 5]`, `v=[1, 0, 0]`, `stop=True`."""
+        pub = self._cmd_pubs.get(vehicle)
+        if pub is None:
+            pub = self._cmd_pubs[vehicle] = self.session.declare_publisher(self.keys.vehicle_cmd(vehicle))
+        pub.put(pack(command))
 
     def control_all(self, op: str, timeout: float = 2.0, **request: Any) -> list[dict[str, Any]]:
         """Every broker's reply (several brokers serve a world split by channels)."""
