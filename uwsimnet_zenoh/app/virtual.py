@@ -1,21 +1,25 @@
-"""Virtual-time runs: a scene file to a Network run to its end, its JSONL trace, and the summary table.
+"""Virtual-time runs: a scene file to a Network run to its end, its trace, and the summary table.
 
 The one assembly of Network + trace sinks for the virtual clock, used by `uwsimnet run`, the experiments and
-the tests (app/realtime.py is its realtime twin)."""
+the tests (app/realtime.py is its realtime twin).  The summary is computed online, as the run goes
+(analysis.Accumulator listening on the tracer), so a run without --trace builds no record at all and a run
+with one never reads its trace back; `uwsimnet report` on the trace gives the same numbers."""
 
 from __future__ import annotations
 
+import gzip
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-from ..analysis import flow_metrics, format_report, format_text
+from ..analysis import Accumulator, Analysis, flow_metrics, format_report, format_text
 from ..engine.network import Network
 from ..errors import UserError
 from ..scene.load import SceneError, load_scene
-from ..trace.events import CallbackSink, JsonlSink, load_tracing_class
+from ..trace.events import ArrowSink, CallbackSink, JsonlSink, load_tracing_class
 
 
 def _warn(msg: str) -> None:
@@ -53,9 +57,23 @@ def load_scene_file(path: str, verbose: bool = False):
     return scene
 
 
-def run_virtual(scene, *, seed: int | None, duration: float | None, trace_path: Path,
+@dataclass
+class VirtualRun:
+    net: Network
+    analysis: Analysis | None       # the online metrics (None unless asked for)
+
+
+def run_virtual(scene, *, seed: int | None, duration: float | None, trace_path: Path | None,
                 progress: bool = True):
-    """Run a scene in virtual time, writing the JSONL trace; returns the Network."""
+    """Run a scene in virtual time, writing its trace (if `trace_path`); returns the Network."""
+    return simulate(scene, seed=seed, duration=duration, trace_path=trace_path, progress=progress,
+                    metrics=False).net
+
+
+def simulate(scene, *, seed: int | None, duration: float | None, trace_path: Path | None = None,
+             progress: bool = True, metrics: bool = True) -> VirtualRun:
+    """Run a scene in virtual time: the trace if `trace_path` (JSONL; `.gz` compressed; `.arrow` the
+    columnar trace, needs pyarrow), the per-flow metrics online if `metrics`."""
     try:
         net = Network(scene, seed=seed, duration=duration)
     except ValueError as e:
@@ -65,13 +83,36 @@ def run_virtual(scene, *, seed: int | None, duration: float | None, trace_path: 
             net.tracer.add(CallbackSink(load_tracing_class(scene.tracing.class_name)))
         except ValueError as e:
             raise UserError(f"{scene.source}:{scene.tracing.line}: {e}") from None
-    trace_path.parent.mkdir(parents=True, exist_ok=True)
-    with open(trace_path, "w", encoding="utf-8") as fh:
-        sink = JsonlSink(fh)
-        sink.header(net.meta())
-        net.tracer.add(sink)
+    meta = net.meta()
+    acc = None
+    if metrics:
+        acc = Accumulator(meta)
+        net.tracer.listen(acc.on_event)
+    if trace_path is None:
         _advance(net, net.duration, progress)
-    return net
+    else:
+        trace_path.parent.mkdir(parents=True, exist_ok=True)
+        if trace_path.suffix == ".arrow":
+            try:
+                sink = ArrowSink(trace_path, meta)
+            except ValueError as e:
+                raise UserError(f"{trace_path}: {e}") from None
+            net.tracer.listen(sink.event)
+            try:
+                _advance(net, net.duration, progress)
+            finally:
+                sink.close()
+        else:
+            opener = gzip.open if trace_path.suffix == ".gz" else open
+            with opener(trace_path, "wb") as fh:
+                jsonl = JsonlSink(fh)
+                jsonl.header(meta)
+                net.tracer.listen(jsonl.event)
+                try:
+                    _advance(net, net.duration, progress)
+                finally:
+                    jsonl.flush()
+    return VirtualRun(net, acc.result() if acc is not None else None)
 
 
 def _advance(net, end: float, progress: bool) -> None:
@@ -94,9 +135,8 @@ def show_metrics(metrics) -> None:
         print(format_text(metrics))
 
 
-def print_summary(trace: str, net) -> None:
-    """The per-flow table of a finished run, and one line on what was simulated."""
-    show_metrics(flow_metrics(trace))
+def print_summary(trace, net) -> None:
+    """The per-flow table of a finished run (from its online Analysis, or by reading a trace file), and
+    one line on what was simulated."""
+    show_metrics(trace.flows if isinstance(trace, Analysis) else flow_metrics(trace))
     print(f"{net.scene.name}: {net.duration:g} s simulated, seed {net.seed}, {net.sched.events_run} events")
-
-
