@@ -308,7 +308,9 @@ class Accumulator:
             self.accs[name] = _Acc(fm)
         self.frames: dict[tuple[str, int], _Frame] = {}
         self.max_tx_seq: dict[str, int] = {}
-        self.channels: dict[Any, ChannelMetrics] = {}
+        self._chan_counts: dict[tuple[Any, str, str | None], int] = {}
+        self._chan_bytes: dict[Any, int] = {}
+        self._chan_ctrl: dict[Any, int] = {}
         self.t_end = -math.inf
         self._header = devs.header
 
@@ -334,34 +336,39 @@ class Accumulator:
 
     def event(self, t: float, ev: str, ch: Any, dev: str, src: int, dst: int | None, seq: int, size: int,
               flow: str | None, kind: str, reason: str | None, has_dist: bool) -> None:
-        """One frame event (`dst` None: the record had none)."""
+        """One frame event (`dst` None: the record had none).  The hot path of a run's summary: kept flat."""
         if t > self.t_end:
             self.t_end = t
-        c = self.channels.get(ch)
-        if c is None:
-            c = self.channels[ch] = ChannelMetrics(ch)
-        tx_dev, at_tx = self.devs.locate(ev, ch, src, dev, reason, has_dist)
-        if ev == "tx":
-            c.sent += 1
-            c.bytes_on_air += size
+        cnt = self._chan_counts
+        ck = (ch, ev, reason)
+        cnt[ck] = cnt.get(ck, 0) + 1
+        devs = self.devs
+        if ev == "drop":
+            at_tx, tx_dev = devs._drop(ch, src, dev, reason, has_dist)  # type: ignore[arg-type]
         elif ev == "rx":
-            c.delivered += 1
-        elif ev == "drop":
-            c.drop_events[reason] = c.drop_events.get(reason, 0) + 1  # type: ignore[index]
+            at_tx = False
+            tx_dev = devs.tx.get((ch, src)) or devs.tx_dev(ch, src)
         else:
-            c.enqueued += 1
+            at_tx = True
+            tx_dev = dev
+            key = (ch, src)
+            if key not in devs.tx:
+                devs.tx[key] = dev
+            if ev == "tx":
+                self._chan_bytes[ch] = self._chan_bytes.get(ch, 0) + size
         if kind != "data":
             if ev == "tx":          # control frames only count as bytes on air of the flow they serve
-                c.ctrl_sent += 1
-                a = self._acc(_ctrl_flow(flow, seq, src, dst, ch, tx_dev, self.devs, self.frames), tx_dev, None)
+                self._chan_ctrl[ch] = self._chan_ctrl.get(ch, 0) + 1
+                a = self._acc(_ctrl_flow(flow, seq, src, dst, ch, tx_dev, devs, self.frames), tx_dev, None)
                 a.m.ctrl_sent += 1
                 a.m.ctrl_bytes_on_air += size
             return
 
+        frames = self.frames
         key = (tx_dev, seq)
-        fr = self.frames.get(key)
+        fr = frames.get(key)
         if fr is None:
-            fr = self.frames[key] = _Frame(flow if flow is not None else tx_dev, ch, -1 if dst is None else dst)
+            fr = frames[key] = _Frame(flow if flow is not None else tx_dev, ch, -1 if dst is None else dst)
         a = self.accs.get(fr.flow)
         if a is None:
             a = self._acc(fr.flow, tx_dev, fr.dst)
@@ -384,9 +391,9 @@ class Accumulator:
             p = m.payload
             m.payload_offered += p if p is not None else max(0, size - self._header.get(tx_dev, 0))
         elif ev == "tx":
-            fr.n_tx += 1
+            n_tx = fr.n_tx = fr.n_tx + 1
             fr.t_tx = t
-            if fr.n_tx == 1:
+            if n_tx == 1:
                 m.unique_sent += 1
                 if seq > self.max_tx_seq.get(tx_dev, -1):
                     self.max_tx_seq[tx_dev] = seq
@@ -397,11 +404,13 @@ class Accumulator:
             m.delivered += 1
             p = m.payload
             m.payload_delivered += p if p is not None else max(0, size - self._header.get(tx_dev, 0))
-            if fr.t_enq is not None:
-                d = t - fr.t_enq
+            t_enq = fr.t_enq
+            if t_enq is not None:
+                d = t - t_enq
                 a.delays.append(d)
-                if a.prev_delay is not None:
-                    a.jit_sum += abs(d - a.prev_delay)
+                prev = a.prev_delay
+                if prev is not None:
+                    a.jit_sum += abs(d - prev)
                     a.jit_n += 1
                 a.prev_delay = d
         else:   # drop
@@ -416,6 +425,25 @@ class Accumulator:
                 r[3] = reason
                 r[4] = fr.n_tx
 
+    def _channels(self) -> dict[Any, ChannelMetrics]:
+        out: dict[Any, ChannelMetrics] = {}
+        for (ch, ev, reason), n in self._chan_counts.items():
+            c = out.get(ch)
+            if c is None:
+                c = out[ch] = ChannelMetrics(ch, bytes_on_air=self._chan_bytes.get(ch, 0),
+                                             ctrl_sent=self._chan_ctrl.get(ch, 0))
+            if ev == "tx":
+                c.sent += n
+            elif ev == "rx":
+                c.delivered += n
+            elif ev == "drop":
+                c.drop_events[reason] = c.drop_events.get(reason, 0) + n  # type: ignore[index]
+            else:
+                c.enqueued += n
+        for c in out.values():
+            c.drop_events = dict(sorted(c.drop_events.items()))
+        return {ch: out[ch] for ch in sorted(out, key=lambda c: (isinstance(c, str), c))}
+
     def result(self, *, horizon: float = DEFAULT_HORIZON, end: float | None = None, limit: int = 1000) -> Analysis:
         """Per-flow metrics, channel counters and the conservation check of the events so far.  Settles
         the frames: call it once, at the end."""
@@ -429,12 +457,7 @@ class Accumulator:
         duration = meta.get("duration")
         flows = {name: _finish(a, self.mflows.get(name), duration if is_num(duration) else None)
                  for name, a in self.accs.items()}
-        channels = {}
-        for ch in sorted(self.channels, key=lambda c: (isinstance(c, str), c)):
-            c = self.channels[ch]
-            c.drop_events = dict(sorted(c.drop_events.items()))
-            channels[ch] = c
-        return Analysis(meta=meta, flows=flows, conservation=cons, channels=channels)
+        return Analysis(meta=meta, flows=flows, conservation=cons, channels=self._channels())
 
 
 def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float = DEFAULT_HORIZON,

@@ -37,22 +37,39 @@ overlap by ~1e-16 s, which must not count as a collision."""
 
 
 class Transmission:
-    """One frame in the air: its arrival/end time at every listener slot (inf = never arrives)."""
+    """One frame in the air: its arrival/end time at every listener slot (inf = never arrives).
 
-    __slots__ = ("frame", "sender", "t0", "dur", "arr", "end", "max_end", "dist", "pow", "acq")
+    Arrival at slot j is `t0 + delay[j]`, the end `t0 + delay[j] + dur` (the same doubles as the arrays
+    `arr` and `end`, which are built only when asked for: the binary rule and carrier sense read the
+    few slots they need from the shared `delay` array of the sender's geometry)."""
 
-    def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, arr: np.ndarray,
+    __slots__ = ("frame", "sender", "t0", "dur", "delay", "_arr", "_end", "max_end", "dist", "pow", "acq")
+
+    def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, delay: np.ndarray,
                  dist: np.ndarray, max_end: float) -> None:
         self.frame = frame
         self.sender = sender
         self.t0 = t0
         self.dur = dur
-        self.arr = arr
-        self.end = arr + dur
+        self.delay = delay
+        self._arr: np.ndarray | None = None
+        self._end: np.ndarray | None = None
         self.dist = dist
         self.max_end = max_end
         self.pow: np.ndarray | None = None    # received power per listener slot, linear (SINR mode only)
         self.acq: dict[int, bool] | None = None   # slot -> acquired (SINR mode, capture "first" only)
+
+    @property
+    def arr(self) -> np.ndarray:
+        if self._arr is None:
+            self._arr = self.delay + self.t0
+        return self._arr
+
+    @property
+    def end(self) -> np.ndarray:
+        if self._end is None:
+            self._end = self.arr + self.dur
+        return self._end
 
 
 class Channel:
@@ -158,12 +175,27 @@ class Channel:
             self._longest = dur
 
         dist, delay, ok, max_delay = self._geometry(sender, now)
-        tx = Transmission(frame, sender, now, dur, delay + now, dist, now + dur + max_delay)
-        if self.sinr:
+        tx = Transmission(frame, sender, now, dur, delay, dist, now + dur + max_delay)
+        sinr = self.sinr
+        if sinr:
             tx.pow = self._powers(sender, dist)
         log.append(tx)
 
         own = sender.rx_slot if sender.rx_channel is self else -1
+        if frame.dst != BROADCAST and not self._overhearing:    # the common case: one addressee, no listener
+            j = self._by_addr.get(frame.dst, -1)
+            if j < 0 or j == own:
+                return
+            if not ok[j]:
+                self._unreachable(sender, frame, j, now, dist)
+                return
+            per = float(sender.error.per(dist[j:j + 1], frame.size)[0])
+            end = float(delay[j]) + now + dur       # = (delay + now + dur)[j], the same double
+            if sinr:
+                self.sched.at(end, self._reception_end_sinr, tx, j, sender.loss_random(), per, True)
+            else:
+                self.sched.at(end, self._reception_end, tx, j, sender.loss_random() < per, True)
+            return
         if frame.dst == BROADCAST:       # every listener is intended: overhearers are among them
             targets = [i for i, m in enumerate(self.listeners) if i != own and m is not None]
             intended = len(targets)
@@ -180,32 +212,40 @@ class Channel:
         rnd = sender.loss_random
         at = self.sched.at
         end = tx.end
-        sinr = self.sinr
         for n, j in enumerate(targets):
             if not reach[n]:
                 if n < intended:
-                    m = self.listeners[j]
-                    known = self.poses.known
-                    why = "nopose" if not (known[self._veh[j]] and known[sender.vehicle_index]) else "range"
-                    self.tracer.emit(now, "drop", self.id, m.id, frame, why, dist=float(dist[j]))
-                    m.phy_failed(frame, why)
+                    self._unreachable(sender, frame, j, now, dist)
                 continue
             if sinr:
                 at(float(end[j]), self._reception_end_sinr, tx, j, rnd(), float(per[n]), n < intended)
             else:
                 at(float(end[j]), self._reception_end, tx, j, rnd() < per[n], n < intended)
 
+    def _unreachable(self, sender: Modem, frame: Frame, j: int, now: float, dist: np.ndarray) -> None:
+        m = self.listeners[j]
+        known = self.poses.known
+        why = "nopose" if not (known[self._veh[j]] and known[sender.vehicle_index]) else "range"
+        self.tracer.emit(now, "drop", self.id, m.id, frame, why, dist=float(dist[j]))
+        m.phy_failed(frame, why)
+
     def _reception_end(self, tx: Transmission, j: int, lost: bool, intended: bool) -> None:
         """The last bit of `tx` reached slot j: decide its fate against everything else heard there."""
         modem = self.listeners[j]
         if modem is None:
             return
-        a, e = tx.arr[j], tx.end[j]
+        t0, dur = tx.t0, tx.dur
+        a = tx.delay[j] + t0
+        e = a + dur
         col = False
         for g in self.log:
-            if g is not tx and j < len(g.arr) and g.arr[j] < e - TOUCH and a < g.end[j] - TOUCH:
-                col = True
-                break
+            if g is not tx:
+                gd = g.delay
+                if j < len(gd):
+                    ga = gd[j] + g.t0
+                    if ga < e - TOUCH and a < ga + g.dur - TOUCH:
+                        col = True
+                        break
         frame = tx.frame
         if not intended:
             if not (lost or col):
@@ -302,18 +342,27 @@ class Channel:
     # -- carrier sense -------------------------------------------------------------------------
     def _heard(self, g: Transmission, slot: int, t: float) -> bool:
         """Is `g` energy at `slot` at time t?  (A modem does not sense its own transmission.)"""
-        return (slot < len(g.arr) and g.arr[slot] <= t < g.end[slot] - TOUCH
+        if slot >= len(g.delay):
+            return False
+        a = g.delay[slot] + g.t0
+        return (a <= t < a + g.dur - TOUCH
                 and not (g.sender.rx_channel is self and g.sender.rx_slot == slot))
 
     def busy(self, slot: int) -> bool:
         t = self.sched.now
-        return any(self._heard(g, slot, t) for g in self.log)
+        for g in self.log:
+            d = g.delay
+            if slot < len(d):
+                a = d[slot] + g.t0
+                if a <= t < a + g.dur - TOUCH and not (g.sender.rx_channel is self and g.sender.rx_slot == slot):
+                    return True
+        return False
 
     def busy_until(self, slot: int) -> float:
         """When the energy heard at `slot` now ends, following overlaps (now if the channel is idle)."""
         t = self.sched.now
         while True:
-            ends = [float(g.end[slot]) for g in self.log if self._heard(g, slot, t)]
+            ends = [float(g.delay[slot] + g.t0 + g.dur) for g in self.log if self._heard(g, slot, t)]
             if not ends:
                 return t
             t = max(ends)
