@@ -36,6 +36,11 @@ begin at the same instant, but float rounding of (t0 + dur) + delay vs (t0 + del
 overlap by ~1e-16 s, which must not count as a collision."""
 
 
+GEO_CACHE_SLOTS = 8_000_000
+"""At most this many (sender, listener) pairs of cached geometry per channel (17 bytes each): every sender
+of a small network, ~800 of 10 000 on one channel (the others' geometry is computed when they send)."""
+
+
 class Transmission:
     """One frame in the air: its arrival/end time at every listener slot (inf = never arrives).
 
@@ -102,6 +107,7 @@ class Channel:
         self.log: deque[Transmission] = deque()
         self._members = 0                           # bumped on attach/detach (invalidates geometry)
         self._geo_cache: dict[str, tuple] = {}
+        self._slots: tuple | None = None            # (pose version, members, positions, alive & known)
         self._longest = 0.0
         self.transmissions = 0
 
@@ -112,7 +118,8 @@ class Channel:
         self._veh = np.append(self._veh, modem.vehicle_index)
         self._alive = np.append(self._alive, True)
         self._by_addr[modem.address] = slot
-        self._refresh_overhearing()
+        if modem.overhears:                 # slots only grow: the list stays in slot order
+            self._overhearing.append(slot)
         self._members += 1
         return slot
 
@@ -148,19 +155,35 @@ class Channel:
         pos = poses.positions(now)
         known = poses.known
         veh = self._veh
-        diff = pos[veh] - pos[sender.vehicle_index]
+        if poses.moving:
+            slot_pos = pos[veh]
+            slot_ok = self._alive & known[veh]
+        else:                                 # the listeners' positions: one copy while nothing changes
+            sl = self._slots
+            if sl is None or sl[0] != poses.version or sl[1] != self._members:
+                sl = self._slots = (poses.version, self._members, pos[veh], self._alive & known[veh])
+            slot_pos, slot_ok = sl[2], sl[3]
+        diff = slot_pos - pos[sender.vehicle_index]
         dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        ok = self._alive & (dist >= sender.min_distance) & (dist <= sender.max_distance) & known[veh]
         if not known[sender.vehicle_index]:
-            ok[:] = False
+            ok = np.zeros(len(veh), dtype=bool)
+        elif sender.min_distance > 0:
+            ok = slot_ok & (dist >= sender.min_distance) & (dist <= sender.max_distance)
+        else:                                 # dist >= 0 holds for every known position
+            ok = slot_ok & (dist <= sender.max_distance)
         delay = np.where(ok, self.min_prop_s + self.prop_s_per_m * dist, INF)
         if sender.rx_channel is self:         # half duplex: my own signal occupies my receiver
             delay[sender.rx_slot] = 0.0
             dist[sender.rx_slot] = 0.0
-        reach = delay[delay < INF]
-        geo = (dist, delay, ok, float(reach.max()) if len(reach) else 0.0)
+        # the longest finite delay (the own slot's 0 included): reach of the transmission
+        geo = (dist, delay, ok, float(np.max(delay, where=ok, initial=0.0)))
         if not poses.moving:
-            self._geo_cache[key] = (poses.version, self._members, geo)
+            cache = self._geo_cache
+            if (len(cache) + 1) * len(veh) > GEO_CACHE_SLOTS:    # bounded: forget the oldest senders
+                for old in list(cache)[:max(1, len(cache) // 4)]:
+                    del cache[old]
+                    self._pow_cache.pop(old, None)
+            cache[key] = (poses.version, self._members, geo)
         return geo
 
     def transmit(self, sender: Modem, frame: Frame, dur: float) -> None:
