@@ -12,9 +12,6 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
 from ..analysis import Accumulator, Analysis, flow_metrics, format_report, format_text
 from ..engine.network import Network
 from ..errors import UserError
@@ -118,6 +115,11 @@ def simulate(scene, *, seed: int | None, duration: float | None, trace_path: Pat
 def _advance(net, end: float, progress: bool) -> None:
     """Run to `end` in slices so a long run can show progress (the slicing changes nothing else)."""
     show = progress and sys.stderr.isatty()
+    if not show:
+        net.run(end)          # the same as the slices below: slicing changes nothing
+        return
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn  # noqa: PLC0415 - a tty only
+
     with Progress(TextColumn("[bold]simulating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
                   TimeRemainingColumn(), transient=True, disable=not show) as bar:
         task = bar.add_task("sim", total=end)
@@ -130,6 +132,8 @@ def _advance(net, end: float, progress: bool) -> None:
 def show_metrics(metrics) -> None:
     """The per-flow table: rich on a terminal, plain aligned text when piped (rich would squeeze it)."""
     if sys.stdout.isatty():
+        from rich.console import Console  # noqa: PLC0415 - a terminal only (start-up time)
+
         Console().print(format_report(metrics))
     else:
         print(format_text(metrics))
