@@ -3,7 +3,8 @@ compiled ns-3.44 program on ns-3's reference pure-ALOHA scenario (issue #19; doc
 
 Scenario (../shared/notes/ns3-reference.md, uwsimnet_zenoh/experiments/aloha.py): a sink at the centre of a
 500 m circle of N sensors, 1000 bps, 40-byte frames (37 B payload + 3 B header), Poisson traffic of G = 1 frame
-time in total, no MAC, no queue.  Two variants of the sensors: half duplex (they listen on the channel they
+time in total, no MAC (NOMAC with `delivery addressee`: a frame is handed up only at its addressee, as ns-3's
+UanMacAloha does), no queue.  Two variants of the sensors: half duplex (they listen on the channel they
 send on, as ns-3's UanPhyGen does) and full duplex (they listen on another channel: the textbook model of
 bench_engine.py).  For each N the benchmark writes both scenes as XML files and runs, one after the other on
 the same machine:
@@ -49,7 +50,8 @@ def scene_xml(n: int, duration: float, *, half: bool, load: float = 1.0, seed: i
     dev = ("<CustomCommsDevice><dccommsId>{id}</dccommsId><mac>{mac}</mac><txChannelId>0</txChannelId>"
            "<rxChannelId>{rx}</rxChannelId><bitrate>1000</bitrate><txFifoSize>0</txFifoSize>"
            "<headerBytes>3</headerBytes><rateErrorModel><errorUnit>packet</errorUnit>"
-           "<errorRateExpr>0</errorRateExpr></rateErrorModel></CustomCommsDevice>")
+           "<errorRateExpr>0</errorRateExpr></rateErrorModel>"
+           "<macProtocol><name>none</name><delivery>addressee</delivery></macProtocol></CustomCommsDevice>")
     out = ["<UWSimScene>",
            f"<simulation><duration>{duration!r}</duration><seed>{seed}</seed><clock>virtual</clock>"
            f"<world>aloha-{'half' if half else 'full'}-{n}</world></simulation>",

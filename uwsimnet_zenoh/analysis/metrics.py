@@ -320,13 +320,14 @@ class Accumulator:
         if ev not in EVENTS:
             return
         self.event(rec["t"], ev, rec["ch"], rec["dev"], rec["src"], rec.get("dst"), rec["seq"], rec["size"],
-                   rec.get("flow"), rec.get("kind", "data"), rec.get("reason"), "dist" in rec)
+                   rec.get("flow"), rec.get("kind", "data"), rec.get("reason"), "dist" in rec,
+                   bool(rec.get("implicit")))
 
     def on_event(self, t: float, ev: str, ch: int, dev: str, frame: Any, reason: str | None,
-                 fifo: int | None, dist: float | None) -> None:
+                 fifo: int | None, dist: float | None, implicit: bool = False) -> None:
         """A tracer listener (trace.events.Tracer.listen): the event as its trace record would say it."""
         self.event(round(t, 9), ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow,
-                   frame.kind, reason, dist is not None)
+                   frame.kind, reason, dist is not None, implicit)
 
     def _acc(self, name: str, tx_dev: str, dst: Any) -> _Acc:
         a = self.accs.get(name)
@@ -335,10 +336,12 @@ class Accumulator:
         return a
 
     def event(self, t: float, ev: str, ch: Any, dev: str, src: int, dst: int | None, seq: int, size: int,
-              flow: str | None, kind: str, reason: str | None, has_dist: bool) -> None:
+              flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool = False) -> None:
         """One frame event (`dst` None: the record had none).  The hot path of a run's summary: kept flat."""
         if t > self.t_end:
             self.t_end = t
+        if implicit and ev == "rx":
+            return                  # handed to a modem that was not the addressee (no MAC): not a delivery
         cnt = self._chan_counts
         ck = (ch, ev, reason)
         cnt[ck] = cnt.get(ck, 0) + 1
@@ -473,11 +476,11 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
         m, cols = read_columns(src)  # type: ignore[arg-type]
         acc = Accumulator(m if meta is None else meta)
         event = acc.event
-        for t, ev, ch, dev, s, d, seq, size, flow, kind, reason, dist in zip(
+        for t, ev, ch, dev, s, d, seq, size, flow, kind, reason, dist, imp in zip(
                 *(cols[k] for k in ("t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind", "reason",
-                                    "dist")), strict=True):
+                                    "dist", "implicit")), strict=True):
             if ev in EVENTS:
-                event(t, ev, ch, dev, s, d, seq, size, flow, kind, reason, dist is not None)
+                event(t, ev, ch, dev, s, d, seq, size, flow, kind, reason, dist is not None, imp)
         return acc.result(horizon=horizon, end=end, limit=limit)
     meta, events = open_source(src, meta)
     acc = Accumulator(meta)
