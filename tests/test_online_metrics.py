@@ -132,11 +132,12 @@ def test_listeners_see_every_event_once():
     assert seen == ["tx"] and tr.count("tx") == 1
 
 
-def test_columnar_trace_reads_back_as_the_jsonl_trace(tmp_path):
+@pytest.mark.parametrize("mac", ["aloha", "none"])        # none: implicit receptions too
+def test_columnar_trace_reads_back_as_the_jsonl_trace(tmp_path, mac):
     pytest.importorskip("pyarrow")
     from test_aloha_theory import sensors_scene
 
-    sc = sensors_scene(6, 1.0, 200.0, 400.0, mac="aloha", fifo=500, seed=2)
+    sc = sensors_scene(6, 1.0, 200.0, 400.0, mac=mac, fifo=500, seed=2)
     a = simulate(sc, seed=None, duration=None, trace_path=tmp_path / "t.arrow", progress=False)
     simulate(sc, seed=None, duration=None, trace_path=tmp_path / "t.jsonl", progress=False)
     same_analysis(analyse(tmp_path / "t.arrow"), analyse(tmp_path / "t.jsonl"))
@@ -155,3 +156,15 @@ def test_cli_report_reads_the_columnar_trace(tmp_path, capsys):
     assert main(["report", str(tmp_path / "t.arrow")]) == 0
     rep = capsys.readouterr().out
     assert rep.strip() and rep.strip() in run_out
+
+
+def test_online_summary_skips_implicit_receptions_as_the_report_does(tmp_path):
+    """NOMAC's implicit broadcast (the default): modems that are not the addressee trace `rx` with
+    `implicit: true`; neither the report nor the online summary counts them as deliveries."""
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(6, 1.0, 200.0, 300.0, mac="none", fifo=500, seed=4)
+    run = simulate(sc, seed=None, duration=None, trace_path=tmp_path / "t.jsonl", progress=False)
+    assert '"implicit":true' in (tmp_path / "t.jsonl").read_text()
+    same_analysis(run.analysis, analyse(tmp_path / "t.jsonl"))
+    assert run.analysis.flows["s0"].delivered <= run.analysis.flows["s0"].sent
