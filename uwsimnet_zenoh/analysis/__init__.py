@@ -4,7 +4,9 @@
 the one core-level room allowed rich and matplotlib."""
 
 from .metrics import (
+    Accumulator,
     Analysis,
+    ChannelMetrics,
     Conservation,
     DeviceMap,
     FlowMetrics,
@@ -29,7 +31,8 @@ from .read import (
 from .tables import format_markdown, format_report, format_text, markdown_table, report_json
 
 __all__ = [
-    "Analysis", "Conservation", "DEFAULT_HORIZON", "DeviceMap", "EVENTS", "FlowMetrics", "InFlight", "RX_REASONS",
+    "Accumulator", "Analysis", "ChannelMetrics",
+    "Conservation", "DEFAULT_HORIZON", "DeviceMap", "EVENTS", "FlowMetrics", "InFlight", "RX_REASONS",
     "Source", "TX_REASONS", "TraceError", "analyse", "conservation", "flow_metrics", "flow_name",
     "format_markdown", "format_report", "format_text", "is_int", "is_num", "markdown_table", "open_source",
     "read_trace", "report_json"

@@ -20,7 +20,18 @@ from typing import Any
 import numpy as np
 
 from ..kernel.frame import BROADCAST
-from .read import DEFAULT_HORIZON, EVENTS, RX_REASONS, TX_REASONS, Source, is_int, is_num, open_source
+from .read import (
+    DEFAULT_HORIZON,
+    EVENTS,
+    RX_REASONS,
+    TX_REASONS,
+    Source,
+    is_columnar,
+    is_int,
+    is_num,
+    open_source,
+    read_columns,
+)
 
 
 # -- who is who ---------------------------------------------------------------------------------
@@ -70,13 +81,12 @@ class DeviceMap:
 
     def classify_drop(self, rec: Mapping[str, Any]) -> tuple[bool, str]:
         """(at the transmitter?, transmitter dccommsId) of a drop event."""
-        ch, src, dev = rec["ch"], rec["src"], rec["dev"]
+        return self._drop(rec["ch"], rec["src"], rec["dev"], rec["reason"], "dist" in rec)
+
+    def _drop(self, ch: Any, src: int, dev: str, reason: str, has_dist: bool) -> tuple[bool, str]:
         known = self.tx.get((ch, src))
-        if known is not None:
-            at_tx = dev == known
-        else:
-            reason = rec["reason"]
-            at_tx = reason in TX_REASONS or (reason not in RX_REASONS and "dist" not in rec)
+        at_tx = (dev == known if known is not None
+                 else reason in TX_REASONS or (reason not in RX_REASONS and not has_dist))
         if at_tx:
             self.learn(ch, src, dev)
             return True, dev
@@ -84,14 +94,20 @@ class DeviceMap:
 
     def transmitter(self, rec: Mapping[str, Any]) -> tuple[str, bool]:
         """(transmitter dccommsId, event happened at the transmitter?) for any frame event."""
-        ev = rec["ev"]
+        return self.locate(rec["ev"], rec["ch"], rec["src"], rec["dev"], rec.get("reason"), "dist" in rec)
+
+    def locate(self, ev: str, ch: Any, src: int, dev: str, reason: str | None,
+               has_dist: bool) -> tuple[str, bool]:
+        """`transmitter()` from the event's fields."""
         if ev == "enq" or ev == "tx":
-            self.learn(rec["ch"], rec["src"], rec["dev"])
-            return rec["dev"], True
+            key = (ch, src)
+            if key not in self.tx:
+                self.tx[key] = dev
+            return dev, True
         if ev == "drop":
-            at_tx, dev = self.classify_drop(rec)
-            return dev, at_tx
-        return self.tx_dev(rec["ch"], rec["src"]), False
+            at_tx, tx_dev = self._drop(ch, src, dev, reason, has_dist)  # type: ignore[arg-type]
+            return tx_dev, at_tx
+        return self.tx_dev(ch, src), False
 
 
 def flow_name(flow: str | None, tx_dev: str) -> str:
@@ -145,6 +161,22 @@ class FlowMetrics:
         return d
 
 
+@dataclass
+class ChannelMetrics:
+    """Counters of one channel (every frame event with that `ch`, data and control frames alike)."""
+
+    ch: Any
+    enqueued: int = 0
+    sent: int = 0                          # tx events
+    ctrl_sent: int = 0                     # of which control frames
+    bytes_on_air: int = 0
+    delivered: int = 0                     # rx events (data and control)
+    drop_events: dict[str, int] = field(default_factory=dict)   # every drop event, by reason
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
 @dataclass(frozen=True)
 class InFlight:
     """A frame that had no outcome yet when the trace ended."""
@@ -188,6 +220,7 @@ class Analysis:
     meta: dict[str, Any]
     flows: dict[str, FlowMetrics]
     conservation: Conservation
+    channels: dict[Any, ChannelMetrics] = field(default_factory=dict)
 
 
 # -- the pass -----------------------------------------------------------------------------------
@@ -248,70 +281,100 @@ class _Acc:
         self.intended = 0
 
 
-def _payload_of(acc: _Acc, size: int, tx_dev: str, devs: DeviceMap) -> int:
-    p = acc.m.payload
-    if p is not None:
-        return p
-    return max(0, size - devs.header.get(tx_dev, 0))
-
-
 def _meta_flows(meta: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
     flows = meta.get("flows") or {}
     return {k: v for k, v in flows.items() if isinstance(v, Mapping)} if isinstance(flows, Mapping) else {}
 
 
-def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float = DEFAULT_HORIZON,
-            end: float | None = None, limit: int = 1000) -> Analysis:
-    """Per-flow metrics and the conservation check in one pass over a trace (path or records).
+class Accumulator:
+    """The metrics of a run, accumulated one event at a time (O(1) per event): the one definition behind
+    `analyse()` on a trace and the online summary of `uwsimnet run` (a tracer listener, `on_event`), so
+    the two give the same numbers for the same run.
 
-    `horizon`: a transmitted frame with no outcome is in flight if its last tx is at or after
-    `end - horizon`, a violation otherwise.  `end`: end of the run (default: max of the meta duration
-    and the last event time).  `limit`: at most this many violation messages are kept (the count of all
-    is `conservation.total`).
+        acc = Accumulator(net.meta()); net.tracer.listen(acc.on_event); net.run(); a = acc.result()
     """
-    meta, events = open_source(src, meta)
-    devs = DeviceMap(meta)
-    mflows = _meta_flows(meta)
-    accs: dict[str, _Acc] = {}
-    for name, f in mflows.items():
-        size = f.get("size")
-        fm = FlowMetrics(name=name, src=f.get("src") if isinstance(f.get("src"), str) else None,
-                         dst=f.get("dst") if is_int(f.get("dst")) else None,
-                         payload=size if is_int(size) else None)
-        accs[name] = _Acc(fm)
-    frames: dict[tuple[str, int], _Frame] = {}
-    max_tx_seq: dict[str, int] = {}
-    t_end = -math.inf
 
-    def acc_for(name: str, tx_dev: str, dst: Any) -> _Acc:
-        a = accs.get(name)
-        if a is None:
-            a = accs[name] = _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if is_int(dst) else None))
-        return a
+    def __init__(self, meta: Mapping[str, Any] | None = None) -> None:
+        meta = dict(meta or {})
+        self.meta = meta
+        self.devs = devs = DeviceMap(meta)
+        self.mflows = mflows = _meta_flows(meta)
+        self.accs: dict[str, _Acc] = {}
+        for name, f in mflows.items():
+            size = f.get("size")
+            fm = FlowMetrics(name=name, src=f.get("src") if isinstance(f.get("src"), str) else None,
+                             dst=f.get("dst") if is_int(f.get("dst")) else None,
+                             payload=size if is_int(size) else None)
+            self.accs[name] = _Acc(fm)
+        self.frames: dict[tuple[str, int], _Frame] = {}
+        self.max_tx_seq: dict[str, int] = {}
+        self._chan_counts: dict[tuple[Any, str, str | None], int] = {}
+        self._chan_bytes: dict[Any, int] = {}
+        self._chan_ctrl: dict[Any, int] = {}
+        self.t_end = -math.inf
+        self._header = devs.header
 
-    for rec in events:
+    def add(self, rec: Mapping[str, Any]) -> None:
+        """One checked trace record (analysis.read); records of other kinds are skipped."""
         ev = rec["ev"]
         if ev not in EVENTS:
-            continue
-        t = rec["t"]
-        if t > t_end:
-            t_end = t
-        tx_dev, at_tx = devs.transmitter(rec)
-        size = rec["size"]
-        if ev == "rx" and rec.get("implicit"):
-            continue                # handed to a modem that was not the addressee (no MAC): not a delivery
-        if rec.get("kind", "data") != "data":
+            return
+        self.event(rec["t"], ev, rec["ch"], rec["dev"], rec["src"], rec.get("dst"), rec["seq"], rec["size"],
+                   rec.get("flow"), rec.get("kind", "data"), rec.get("reason"), "dist" in rec,
+                   bool(rec.get("implicit")))
+
+    def on_event(self, t: float, ev: str, ch: int, dev: str, frame: Any, reason: str | None,
+                 fifo: int | None, dist: float | None, implicit: bool = False) -> None:
+        """A tracer listener (trace.events.Tracer.listen): the event as its trace record would say it."""
+        self.event(round(t, 9), ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow,
+                   frame.kind, reason, dist is not None, implicit)
+
+    def _acc(self, name: str, tx_dev: str, dst: Any) -> _Acc:
+        a = self.accs.get(name)
+        if a is None:
+            a = self.accs[name] = _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if is_int(dst) else None))
+        return a
+
+    def event(self, t: float, ev: str, ch: Any, dev: str, src: int, dst: int | None, seq: int, size: int,
+              flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool = False) -> None:
+        """One frame event (`dst` None: the record had none).  The hot path of a run's summary: kept flat."""
+        if t > self.t_end:
+            self.t_end = t
+        if implicit and ev == "rx":
+            return                  # handed to a modem that was not the addressee (no MAC): not a delivery
+        cnt = self._chan_counts
+        ck = (ch, ev, reason)
+        cnt[ck] = cnt.get(ck, 0) + 1
+        devs = self.devs
+        if ev == "drop":
+            at_tx, tx_dev = devs._drop(ch, src, dev, reason, has_dist)  # type: ignore[arg-type]
+        elif ev == "rx":
+            at_tx = False
+            tx_dev = devs.tx.get((ch, src)) or devs.tx_dev(ch, src)
+        else:
+            at_tx = True
+            tx_dev = dev
+            key = (ch, src)
+            if key not in devs.tx:
+                devs.tx[key] = dev
+            if ev == "tx":
+                self._chan_bytes[ch] = self._chan_bytes.get(ch, 0) + size
+        if kind != "data":
             if ev == "tx":          # control frames only count as bytes on air of the flow they serve
-                a = acc_for(_ctrl_flow(rec, tx_dev, devs, frames), tx_dev, None)
+                self._chan_ctrl[ch] = self._chan_ctrl.get(ch, 0) + 1
+                a = self._acc(_ctrl_flow(flow, seq, src, dst, ch, tx_dev, devs, self.frames), tx_dev, None)
                 a.m.ctrl_sent += 1
                 a.m.ctrl_bytes_on_air += size
-            continue
+            return
 
-        key = (tx_dev, rec["seq"])
+        frames = self.frames
+        key = (tx_dev, seq)
         fr = frames.get(key)
         if fr is None:
-            fr = frames[key] = _Frame(flow_name(rec.get("flow"), tx_dev), rec["ch"], rec.get("dst", -1))
-        a = acc_for(fr.flow, tx_dev, fr.dst)
+            fr = frames[key] = _Frame(flow if flow is not None else tx_dev, ch, -1 if dst is None else dst)
+        a = self.accs.get(fr.flow)
+        if a is None:
+            a = self._acc(fr.flow, tx_dev, fr.dst)
         m = a.m
         if a.t_first is None:
             a.t_first = t
@@ -328,60 +391,111 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
             if a.t_first_enq is None:
                 a.t_first_enq = t
             m.enqueued += 1
-            m.payload_offered += _payload_of(a, size, tx_dev, devs)
+            p = m.payload
+            m.payload_offered += p if p is not None else max(0, size - self._header.get(tx_dev, 0))
         elif ev == "tx":
-            fr.n_tx += 1
+            n_tx = fr.n_tx = fr.n_tx + 1
             fr.t_tx = t
-            if fr.n_tx == 1:
+            if n_tx == 1:
                 m.unique_sent += 1
-                if key[1] > max_tx_seq.get(tx_dev, -1):
-                    max_tx_seq[tx_dev] = key[1]
+                if seq > self.max_tx_seq.get(tx_dev, -1):
+                    self.max_tx_seq[tx_dev] = seq
             m.sent += 1
             m.data_bytes_on_air += size
         elif ev == "rx":
-            fr.receiver(rec["dev"])[1] += 1
+            fr.receiver(dev)[1] += 1
             m.delivered += 1
-            m.payload_delivered += _payload_of(a, size, tx_dev, devs)
-            if fr.t_enq is not None:
-                d = t - fr.t_enq
+            p = m.payload
+            m.payload_delivered += p if p is not None else max(0, size - self._header.get(tx_dev, 0))
+            t_enq = fr.t_enq
+            if t_enq is not None:
+                d = t - t_enq
                 a.delays.append(d)
-                if a.prev_delay is not None:
-                    a.jit_sum += abs(d - a.prev_delay)
+                prev = a.prev_delay
+                if prev is not None:
+                    a.jit_sum += abs(d - prev)
                     a.jit_n += 1
                 a.prev_delay = d
         else:   # drop
-            reason = rec["reason"]
-            a.drop_events[reason] = a.drop_events.get(reason, 0) + 1
+            a.drop_events[reason] = a.drop_events.get(reason, 0) + 1  # type: ignore[index]
             if at_tx:
                 fr.n_txdrop += 1
                 fr.txdrop = reason
                 fr.txdrop_at = fr.n_tx
             else:
-                r = fr.receiver(rec["dev"])
+                r = fr.receiver(dev)
                 r[2] += 1
                 r[3] = reason
                 r[4] = fr.n_tx
 
-    if end is None:
-        dur = meta.get("duration")
-        end = max(dur if is_num(dur) else -math.inf, t_end)
-        if not math.isfinite(end):
-            end = 0.0
-    cons = _settle(frames, accs, devs, max_tx_seq, end, horizon, limit)
-    duration = meta.get("duration")
-    flows = {name: _finish(a, mflows.get(name), duration if is_num(duration) else None)
-             for name, a in accs.items()}
-    return Analysis(meta=meta, flows=flows, conservation=cons)
+    def _channels(self) -> dict[Any, ChannelMetrics]:
+        out: dict[Any, ChannelMetrics] = {}
+        for (ch, ev, reason), n in self._chan_counts.items():
+            c = out.get(ch)
+            if c is None:
+                c = out[ch] = ChannelMetrics(ch, bytes_on_air=self._chan_bytes.get(ch, 0),
+                                             ctrl_sent=self._chan_ctrl.get(ch, 0))
+            if ev == "tx":
+                c.sent += n
+            elif ev == "rx":
+                c.delivered += n
+            elif ev == "drop":
+                c.drop_events[reason] = c.drop_events.get(reason, 0) + n  # type: ignore[index]
+            else:
+                c.enqueued += n
+        for c in out.values():
+            c.drop_events = dict(sorted(c.drop_events.items()))
+        return {ch: out[ch] for ch in sorted(out, key=lambda c: (isinstance(c, str), c))}
+
+    def result(self, *, horizon: float = DEFAULT_HORIZON, end: float | None = None, limit: int = 1000) -> Analysis:
+        """Per-flow metrics, channel counters and the conservation check of the events so far.  Settles
+        the frames: call it once, at the end."""
+        meta = self.meta
+        if end is None:
+            dur = meta.get("duration")
+            end = max(dur if is_num(dur) else -math.inf, self.t_end)
+            if not math.isfinite(end):
+                end = 0.0
+        cons = _settle(self.frames, self.accs, self.devs, self.max_tx_seq, end, horizon, limit)
+        duration = meta.get("duration")
+        flows = {name: _finish(a, self.mflows.get(name), duration if is_num(duration) else None)
+                 for name, a in self.accs.items()}
+        return Analysis(meta=meta, flows=flows, conservation=cons, channels=self._channels())
 
 
-def _ctrl_flow(rec: Mapping[str, Any], tx_dev: str, devs: DeviceMap,
+def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float = DEFAULT_HORIZON,
+            end: float | None = None, limit: int = 1000) -> Analysis:
+    """Per-flow metrics and the conservation check in one pass over a trace (path or records).
+
+    `horizon`: a transmitted frame with no outcome is in flight if its last tx is at or after
+    `end - horizon`, a violation otherwise.  `end`: end of the run (default: max of the meta duration
+    and the last event time).  `limit`: at most this many violation messages are kept (the count of all
+    is `conservation.total`).
+    """
+    if is_columnar(src):      # whole columns: no JSON, no per-record dict, no per-record checks
+        m, cols = read_columns(src)  # type: ignore[arg-type]
+        acc = Accumulator(m if meta is None else meta)
+        event = acc.event
+        for t, ev, ch, dev, s, d, seq, size, flow, kind, reason, dist, imp in zip(
+                *(cols[k] for k in ("t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind", "reason",
+                                    "dist", "implicit")), strict=True):
+            if ev in EVENTS:
+                event(t, ev, ch, dev, s, d, seq, size, flow, kind, reason, dist is not None, imp)
+        return acc.result(horizon=horizon, end=end, limit=limit)
+    meta, events = open_source(src, meta)
+    acc = Accumulator(meta)
+    add = acc.add
+    for rec in events:
+        add(rec)
+    return acc.result(horizon=horizon, end=end, limit=limit)
+
+
+def _ctrl_flow(flow: str | None, seq: int, src: int, dst: int | None, ch: Any, tx_dev: str, devs: DeviceMap,
                frames: Mapping[tuple[str, int], _Frame]) -> str:
     """The flow a control frame serves: its `flow`, else the data frame it is about (an RTS names the
     data frame's (src, seq, dst); a CTS/ACK answers with src and dst swapped), else its transmitter."""
-    flow = rec.get("flow")
     if flow is not None:
         return flow
-    seq, src, dst, ch = rec["seq"], rec["src"], rec.get("dst"), rec["ch"]
     fr = frames.get((tx_dev, seq))
     if fr is not None and (fr.dst == dst or fr.dst == BROADCAST):
         return fr.flow

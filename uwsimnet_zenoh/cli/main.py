@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..app import ros2
-from ..app.virtual import load_scene_file, print_summary, run_virtual, show_metrics
+from ..app.virtual import load_scene_file, print_summary, show_metrics, simulate
 from ..errors import UserError, UwsimnetError
 from . import deploy, drivers, experiment, sweep, view
 from .zenoh_flags import add_zenoh_flags
@@ -72,20 +72,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.view and not trace:                     # the page replays the run's trace after it
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "trace.jsonl"
-            print_summary(str(path), run_virtual(scene, seed=args.seed, duration=args.duration, trace_path=path))
+            run = simulate(scene, seed=args.seed, duration=args.duration, trace_path=path)
+            print_summary(run.analysis, run.net)
             view.view_after_run(args, str(path))
         return 0
+    run = simulate(scene, seed=args.seed, duration=args.duration, trace_path=Path(trace) if trace else None)
+    print_summary(run.analysis, run.net)        # online: the trace is not read back
     if trace:
-        net = run_virtual(scene, seed=args.seed, duration=args.duration, trace_path=Path(trace))
-        print_summary(trace, net)
         print(f"trace: {trace}")
         if args.view:
             view.view_after_run(args, trace)
-        return 0
-    with tempfile.TemporaryDirectory() as tmp:     # the summary is computed from a trace all the same
-        path = Path(tmp) / "trace.jsonl"
-        net = run_virtual(scene, seed=args.seed, duration=args.duration, trace_path=path)
-        print_summary(str(path), net)
     return 0
 
 

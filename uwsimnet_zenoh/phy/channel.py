@@ -36,23 +36,45 @@ begin at the same instant, but float rounding of (t0 + dur) + delay vs (t0 + del
 overlap by ~1e-16 s, which must not count as a collision."""
 
 
+GEO_CACHE_SLOTS = 8_000_000
+"""At most this many (sender, listener) pairs of cached geometry per channel (17 bytes each): every sender
+of a small network, ~800 of 10 000 on one channel (the others' geometry is computed when they send)."""
+
+
 class Transmission:
-    """One frame in the air: its arrival/end time at every listener slot (inf = never arrives)."""
+    """One frame in the air: its arrival/end time at every listener slot (inf = never arrives).
 
-    __slots__ = ("frame", "sender", "t0", "dur", "arr", "end", "max_end", "dist", "pow", "acq")
+    Arrival at slot j is `t0 + delay[j]`, the end `t0 + delay[j] + dur` (the same doubles as the arrays
+    `arr` and `end`, which are built only when asked for: the binary rule and carrier sense read the
+    few slots they need from the shared `delay` array of the sender's geometry)."""
 
-    def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, arr: np.ndarray,
+    __slots__ = ("frame", "sender", "t0", "dur", "delay", "_arr", "_end", "max_end", "dist", "pow", "acq")
+
+    def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, delay: np.ndarray,
                  dist: np.ndarray, max_end: float) -> None:
         self.frame = frame
         self.sender = sender
         self.t0 = t0
         self.dur = dur
-        self.arr = arr
-        self.end = arr + dur
+        self.delay = delay
+        self._arr: np.ndarray | None = None
+        self._end: np.ndarray | None = None
         self.dist = dist
         self.max_end = max_end
         self.pow: np.ndarray | None = None    # received power per listener slot, linear (SINR mode only)
         self.acq: dict[int, bool] | None = None   # slot -> acquired (SINR mode, capture "first" only)
+
+    @property
+    def arr(self) -> np.ndarray:
+        if self._arr is None:
+            self._arr = self.delay + self.t0
+        return self._arr
+
+    @property
+    def end(self) -> np.ndarray:
+        if self._end is None:
+            self._end = self.arr + self.dur
+        return self._end
 
 
 class Channel:
@@ -85,6 +107,7 @@ class Channel:
         self.log: deque[Transmission] = deque()
         self._members = 0                           # bumped on attach/detach (invalidates geometry)
         self._geo_cache: dict[str, tuple] = {}
+        self._slots: tuple | None = None            # (pose version, members, positions, alive & known)
         self._longest = 0.0
         self.transmissions = 0
 
@@ -95,7 +118,8 @@ class Channel:
         self._veh = np.append(self._veh, modem.vehicle_index)
         self._alive = np.append(self._alive, True)
         self._by_addr[modem.address] = slot
-        self._refresh_overhearing()
+        if modem.overhears:                 # slots only grow: the list stays in slot order
+            self._overhearing.append(slot)
         self._members += 1
         return slot
 
@@ -131,19 +155,35 @@ class Channel:
         pos = poses.positions(now)
         known = poses.known
         veh = self._veh
-        diff = pos[veh] - pos[sender.vehicle_index]
+        if poses.moving:
+            slot_pos = pos[veh]
+            slot_ok = self._alive & known[veh]
+        else:                                 # the listeners' positions: one copy while nothing changes
+            sl = self._slots
+            if sl is None or sl[0] != poses.version or sl[1] != self._members:
+                sl = self._slots = (poses.version, self._members, pos[veh], self._alive & known[veh])
+            slot_pos, slot_ok = sl[2], sl[3]
+        diff = slot_pos - pos[sender.vehicle_index]
         dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        ok = self._alive & (dist >= sender.min_distance) & (dist <= sender.max_distance) & known[veh]
         if not known[sender.vehicle_index]:
-            ok[:] = False
+            ok = np.zeros(len(veh), dtype=bool)
+        elif sender.min_distance > 0:
+            ok = slot_ok & (dist >= sender.min_distance) & (dist <= sender.max_distance)
+        else:                                 # dist >= 0 holds for every known position
+            ok = slot_ok & (dist <= sender.max_distance)
         delay = np.where(ok, self.min_prop_s + self.prop_s_per_m * dist, INF)
         if sender.rx_channel is self:         # half duplex: my own signal occupies my receiver
             delay[sender.rx_slot] = 0.0
             dist[sender.rx_slot] = 0.0
-        reach = delay[delay < INF]
-        geo = (dist, delay, ok, float(reach.max()) if len(reach) else 0.0)
+        # the longest finite delay (the own slot's 0 included): reach of the transmission
+        geo = (dist, delay, ok, float(np.max(delay, where=ok, initial=0.0)))
         if not poses.moving:
-            self._geo_cache[key] = (poses.version, self._members, geo)
+            cache = self._geo_cache
+            if (len(cache) + 1) * len(veh) > GEO_CACHE_SLOTS:    # bounded: forget the oldest senders
+                for old in list(cache)[:max(1, len(cache) // 4)]:
+                    del cache[old]
+                    self._pow_cache.pop(old, None)
+            cache[key] = (poses.version, self._members, geo)
         return geo
 
     def transmit(self, sender: Modem, frame: Frame, dur: float) -> None:
@@ -158,12 +198,27 @@ class Channel:
             self._longest = dur
 
         dist, delay, ok, max_delay = self._geometry(sender, now)
-        tx = Transmission(frame, sender, now, dur, delay + now, dist, now + dur + max_delay)
-        if self.sinr:
+        tx = Transmission(frame, sender, now, dur, delay, dist, now + dur + max_delay)
+        sinr = self.sinr
+        if sinr:
             tx.pow = self._powers(sender, dist)
         log.append(tx)
 
         own = sender.rx_slot if sender.rx_channel is self else -1
+        if frame.dst != BROADCAST and not self._overhearing:    # the common case: one addressee, no listener
+            j = self._by_addr.get(frame.dst, -1)
+            if j < 0 or j == own:
+                return
+            if not ok[j]:
+                self._unreachable(sender, frame, j, now, dist)
+                return
+            per = float(sender.error.per(dist[j:j + 1], frame.size)[0])
+            end = float(delay[j]) + now + dur       # = (delay + now + dur)[j], the same double
+            if sinr:
+                self.sched.at(end, self._reception_end_sinr, tx, j, sender.loss_random(), per, True)
+            else:
+                self.sched.at(end, self._reception_end, tx, j, sender.loss_random() < per, True)
+            return
         if frame.dst == BROADCAST:       # every listener is intended: overhearers are among them
             targets = [i for i, m in enumerate(self.listeners) if i != own and m is not None]
             intended = len(targets)
@@ -180,32 +235,40 @@ class Channel:
         rnd = sender.loss_random
         at = self.sched.at
         end = tx.end
-        sinr = self.sinr
         for n, j in enumerate(targets):
             if not reach[n]:
                 if n < intended:
-                    m = self.listeners[j]
-                    known = self.poses.known
-                    why = "nopose" if not (known[self._veh[j]] and known[sender.vehicle_index]) else "range"
-                    self.tracer.emit(now, "drop", self.id, m.id, frame, why, dist=float(dist[j]))
-                    m.phy_failed(frame, why)
+                    self._unreachable(sender, frame, j, now, dist)
                 continue
             if sinr:
                 at(float(end[j]), self._reception_end_sinr, tx, j, rnd(), float(per[n]), n < intended)
             else:
                 at(float(end[j]), self._reception_end, tx, j, rnd() < per[n], n < intended)
 
+    def _unreachable(self, sender: Modem, frame: Frame, j: int, now: float, dist: np.ndarray) -> None:
+        m = self.listeners[j]
+        known = self.poses.known
+        why = "nopose" if not (known[self._veh[j]] and known[sender.vehicle_index]) else "range"
+        self.tracer.emit(now, "drop", self.id, m.id, frame, why, dist=float(dist[j]))
+        m.phy_failed(frame, why)
+
     def _reception_end(self, tx: Transmission, j: int, lost: bool, intended: bool) -> None:
         """The last bit of `tx` reached slot j: decide its fate against everything else heard there."""
         modem = self.listeners[j]
         if modem is None:
             return
-        a, e = tx.arr[j], tx.end[j]
+        t0, dur = tx.t0, tx.dur
+        a = tx.delay[j] + t0
+        e = a + dur
         col = False
         for g in self.log:
-            if g is not tx and j < len(g.arr) and g.arr[j] < e - TOUCH and a < g.end[j] - TOUCH:
-                col = True
-                break
+            if g is not tx:
+                gd = g.delay
+                if j < len(gd):
+                    ga = gd[j] + g.t0
+                    if ga < e - TOUCH and a < ga + g.dur - TOUCH:
+                        col = True
+                        break
         frame = tx.frame
         if not intended:
             if not (lost or col):
@@ -302,18 +365,27 @@ class Channel:
     # -- carrier sense -------------------------------------------------------------------------
     def _heard(self, g: Transmission, slot: int, t: float) -> bool:
         """Is `g` energy at `slot` at time t?  (A modem does not sense its own transmission.)"""
-        return (slot < len(g.arr) and g.arr[slot] <= t < g.end[slot] - TOUCH
+        if slot >= len(g.delay):
+            return False
+        a = g.delay[slot] + g.t0
+        return (a <= t < a + g.dur - TOUCH
                 and not (g.sender.rx_channel is self and g.sender.rx_slot == slot))
 
     def busy(self, slot: int) -> bool:
         t = self.sched.now
-        return any(self._heard(g, slot, t) for g in self.log)
+        for g in self.log:
+            d = g.delay
+            if slot < len(d):
+                a = d[slot] + g.t0
+                if a <= t < a + g.dur - TOUCH and not (g.sender.rx_channel is self and g.sender.rx_slot == slot):
+                    return True
+        return False
 
     def busy_until(self, slot: int) -> float:
         """When the energy heard at `slot` now ends, following overlaps (now if the channel is idle)."""
         t = self.sched.now
         while True:
-            ends = [float(g.end[slot]) for g in self.log if self._heard(g, slot, t)]
+            ends = [float(g.delay[slot] + g.t0 + g.dur) for g in self.log if self._heard(g, slot, t)]
             if not ends:
                 return t
             t = max(ends)

@@ -77,9 +77,11 @@ class NativeVocabulary(XmlReader):
             self.fail(els["size"], f"size: {flow.size}{head} bytes exceeds maxFrameBytes"
                                    f" {dev.max_frame_bytes} of device {dev.dccomms_id!r}")
         if flow.dst != BROADCAST:
-            hearing = [d for d, _ in devices.values()
-                       if d.rx_channel == dev.tx_channel and d.address == flow.dst]
-            if not hearing:
+            cache = getattr(self, "_listening", None)     # (rx channel, address) of every device, built once
+            if cache is None or cache[0] is not devices or cache[1] != len(devices):
+                cache = self._listening = (devices, len(devices), {(d.rx_channel, d.address)
+                                                                   for d, _ in devices.values()})
+            if (dev.tx_channel, flow.dst) not in cache[2]:
                 self.warn(els["dst"], f"flow {flow.name!r}: no device listening on channel {dev.tx_channel}"
                                       f" has address {flow.dst}")
 

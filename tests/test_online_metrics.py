@@ -1,0 +1,170 @@
+"""Issue #19: the summary of `uwsimnet run` is computed online and equals `uwsimnet report` on the trace;
+the trace costs nothing when nobody listens and is written fast, byte for byte as Python's json writes it.
+
+The golden traces (test_golden_traces.py) pin the JSONL bytes of every scene; here: the metrics computed
+during the run against the same metrics computed from its trace (JSONL, gzip and the columnar trace), on
+every scene under scenes/ and on the ALOHA reference scenario with a MAC that retransmits."""
+
+from __future__ import annotations
+
+import gzip
+import io
+import json
+import math
+import os
+from pathlib import Path
+
+import pytest
+
+from uwsimnet_zenoh.analysis import analyse, read_trace, report_json
+from uwsimnet_zenoh.app.virtual import load_scene_file, simulate
+from uwsimnet_zenoh.cli.main import main
+from uwsimnet_zenoh.engine.network import Network
+from uwsimnet_zenoh.kernel.frame import Frame
+from uwsimnet_zenoh.trace import events
+from uwsimnet_zenoh.trace.events import JsonlSink, Tracer
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENES = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "scenes").rglob("*.xml"))
+
+
+def same_analysis(a, b) -> None:
+    assert report_json(a.flows) == report_json(b.flows)
+    assert {k: c.to_dict() for k, c in a.channels.items()} == {k: c.to_dict() for k, c in b.channels.items()}
+    assert list(a.conservation) == list(b.conservation)
+    assert a.conservation.in_flight == b.conservation.in_flight
+    assert a.conservation.frames == b.conservation.frames
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_online_summary_equals_the_report_of_the_trace(scene, tmp_path):
+    sc = load_scene_file(str(ROOT / scene))
+    duration = min(sc.simulation.duration or 40.0, 40.0)
+    run = simulate(sc, seed=3, duration=duration, trace_path=tmp_path / "t.jsonl", progress=False)
+    assert run.analysis is not None       # (scenes whose traffic comes from external apps have no flow)
+    same_analysis(run.analysis, analyse(tmp_path / "t.jsonl"))
+    sent = sum(f.sent for f in run.analysis.flows.values()) + sum(f.ctrl_sent for f in run.analysis.flows.values())
+    assert sum(c.sent for c in run.analysis.channels.values()) == sent == run.net.tracer.count("tx")
+
+
+def test_online_summary_with_retransmissions_and_control_frames(tmp_path):
+    """S-FAMA-like exchanges (ctrl frames, retries, receiver-side drops of earlier attempts) on a busy channel."""
+    from test_aloha_theory import sensors_scene
+
+    for mac in ("aloha", "sfama"):
+        sc = sensors_scene(8, 1.5, 300.0, 300.0, mac=mac, fifo=2000, seed=5)
+        run = simulate(sc, seed=None, duration=None, trace_path=tmp_path / f"{mac}.jsonl", progress=False)
+        a = run.analysis
+        assert sum(sum(f.drops.values()) for f in a.flows.values()) > 0
+        same_analysis(a, analyse(tmp_path / f"{mac}.jsonl"))
+        if mac == "sfama":
+            assert sum(f.ctrl_sent for f in a.flows.values()) > 0
+
+
+def test_gzip_trace_is_the_same_trace(tmp_path):
+    sc = load_scene_file(str(ROOT / "scenes/examples/two-nodes.xml"))
+    simulate(sc, seed=1, duration=None, trace_path=tmp_path / "t.jsonl", progress=False)
+    simulate(sc, seed=1, duration=None, trace_path=tmp_path / "t.jsonl.gz", progress=False)
+    assert gzip.decompress((tmp_path / "t.jsonl.gz").read_bytes()) == (tmp_path / "t.jsonl").read_bytes()
+
+
+def test_no_listener_no_record(monkeypatch, tmp_path):
+    """Without a trace the run builds no record (record() is never called) and writes no file."""
+    def boom(*a, **k):
+        raise AssertionError("a record was built")
+    monkeypatch.setattr(events, "record", boom)
+    sc = load_scene_file(str(ROOT / "scenes/examples/two-nodes.xml"))
+    run = simulate(sc, seed=1, duration=None, trace_path=None, progress=False)
+    assert run.analysis.flows["alpha-to-bravo"].delivered == 60
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    assert main(["run", str(ROOT / "scenes/examples/two-nodes.xml")]) == 0
+    assert os.listdir(tmp_path) == []
+
+
+def test_record_sinks_still_get_dicts():
+    sc = load_scene_file(str(ROOT / "scenes/examples/two-nodes.xml"))
+    net = Network(sc)
+    got: list[dict] = []
+    net.tracer.add(got.append)
+    net.run()
+    assert [r["ev"] for r in got[:3]] == ["enq", "tx", "rx"]
+    assert list(got[2]) == ["t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind", "dist"]
+
+
+REF = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False).encode
+
+
+@pytest.mark.parametrize("t, dist", [
+    (0.0, None), (5e-05, None), (1e-4, 3.0), (12.345678912, 0.0), (3.2e-07, 1e-05), (1e16, 2.5e16),
+    (7.5, math.nan), (7.5, math.inf), (123456.000000001, 499.9995), (1e15, 1e-4), (0.1 + 0.2, 0.001)])
+def test_fast_lines_are_json_lines(t, dist):
+    """msgspec writes floats as Python does except in exponent form (1e-05 vs 1e-5): those fall back."""
+    frame = Frame(3, 255, 17, 40, 37, flow="fl\u00f6w \"q\"\n", dev="d\u00e9v")
+    for reason, fifo in ((None, None), ("col", None), (None, 80), ("fifo", 0)):
+        fast, ref = io.BytesIO(), io.StringIO()
+        sink = JsonlSink(fast)
+        sink.event(t, "drop", 2, "d\u00e9v\u2028", frame, reason, fifo, dist)
+        sink.flush()
+        ref.write(REF(events.record(t, "drop", 2, "d\u00e9v\u2028", frame, reason, fifo, dist)) + "\n")
+        assert fast.getvalue().decode("utf-8") == ref.getvalue()
+
+
+def test_batched_lines_keep_their_order_around_fallbacks():
+    frame = Frame(1, 2, 0, 10, 10, flow=None)
+    fast = io.StringIO()
+    sink = JsonlSink(fast, batch=3)
+    expect = []
+    for i, t in enumerate([0.0, 1e-6, 0.5, 0.75, 2e-5, 1.0, 2.0, 3.0]):
+        frame.seq = i
+        sink.event(t, "tx", 0, "a", frame, None, 0, None)
+        expect.append(REF(events.record(t, "tx", 0, "a", frame, None, 0, None)))
+    sink.header({"ev": "meta"})
+    sink.flush()
+    assert fast.getvalue().splitlines() == expect + ['{"ev":"meta"}']
+
+
+def test_listeners_see_every_event_once():
+    tr = Tracer()
+    seen = []
+    tr.listen(lambda *a: seen.append(a[1]))
+    tr.emit(1.0, "tx", 0, "a", Frame(1, 2, 0, 10, 10))
+    assert seen == ["tx"] and tr.count("tx") == 1
+
+
+@pytest.mark.parametrize("mac", ["aloha", "none"])        # none: implicit receptions too
+def test_columnar_trace_reads_back_as_the_jsonl_trace(tmp_path, mac):
+    pytest.importorskip("pyarrow")
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(6, 1.0, 200.0, 400.0, mac=mac, fifo=500, seed=2)
+    a = simulate(sc, seed=None, duration=None, trace_path=tmp_path / "t.arrow", progress=False)
+    simulate(sc, seed=None, duration=None, trace_path=tmp_path / "t.jsonl", progress=False)
+    same_analysis(analyse(tmp_path / "t.arrow"), analyse(tmp_path / "t.jsonl"))
+    same_analysis(a.analysis, analyse(tmp_path / "t.arrow"))
+    ma, ea = read_trace(tmp_path / "t.arrow")
+    mj, ej = read_trace(tmp_path / "t.jsonl")
+    assert ma == mj
+    assert list(ea) == list(ej)
+
+
+def test_cli_report_reads_the_columnar_trace(tmp_path, capsys):
+    pytest.importorskip("pyarrow")
+    scene = str(ROOT / "scenes/examples/two-nodes.xml")
+    assert main(["run", scene, "--trace", str(tmp_path / "t.arrow")]) == 0
+    run_out = capsys.readouterr().out
+    assert main(["report", str(tmp_path / "t.arrow")]) == 0
+    rep = capsys.readouterr().out
+    assert rep.strip() and rep.strip() in run_out
+
+
+def test_online_summary_skips_implicit_receptions_as_the_report_does(tmp_path):
+    """NOMAC's implicit broadcast (the default): modems that are not the addressee trace `rx` with
+    `implicit: true`; neither the report nor the online summary counts them as deliveries."""
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(6, 1.0, 200.0, 300.0, mac="none", fifo=500, seed=4)
+    run = simulate(sc, seed=None, duration=None, trace_path=tmp_path / "t.jsonl", progress=False)
+    assert '"implicit":true' in (tmp_path / "t.jsonl").read_text()
+    same_analysis(run.analysis, analyse(tmp_path / "t.jsonl"))
+    assert run.analysis.flows["s0"].delivered <= run.analysis.flows["s0"].sent
