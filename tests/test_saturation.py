@@ -73,3 +73,14 @@ def test_no_retry_limit_never_drops_a_frame():
     from uwsimnet_zenoh.app.api import run
     r = run(two_senders(), seed=1, overrides={"flow.f.rate": 2.0, "flow.g.rate": 2.0})
     assert all(not m.get("drops", {}).get("retry") for m in r.flows.values())
+
+
+def test_table1_summary_states_found_maxima_next_to_the_paper():
+    from uwsimnet_zenoh.experiments.table1 import markdown
+    c = lambda m, paper: {"mean_Bps": m, "half_Bps": 1.0, "paper_Bps": paper}   # noqa: E731
+    res = {"tolerance": 0.05, "max_delay": 30.0, "seeds": [1, 2],
+           "found": {"aloha": {"RF": c(75.0, 62.5), "acoustic": c(40.0, 30)},
+                     "sfama": {"RF": c(30.0, 27.5), "acoustic": c(40.0, 27.5)}}}
+    md = markdown(res)
+    assert "| ALOHA | 75.0 ± 1.0 | 62.5 | 40.0 ± 1.0 | 30 |" in md
+    assert "RF 2.50 (paper 2.27), acoustic 1.00 (paper 1.09)" in md
