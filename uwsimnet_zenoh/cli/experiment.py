@@ -40,6 +40,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     ap.add_argument("--seeds", help="phy-layer: PER per distance bin over these seeds (Wilson intervals);"
                                     " twinbot: the three MACs over these seeds with 95 %% intervals;"
                                     " table1: the saturation search over these seeds (default 1-3)")
+    ap.add_argument("--profile", choices=("default", "original"), default="default",
+                    help="table1: 'original' = the original's framing (+10 B on DATA), 500 B FIFO, no retry limit,"
+                         " unicast support/buoy (approximated with headerBytes)")
     ap.add_argument("--workers", type=int, default=1, help="twinbot --seeds: worker processes")
     ap.set_defaults(fn=run)
 
@@ -58,7 +61,7 @@ def run(a: argparse.Namespace) -> int:
         return _twinbot_seeds(a, out)
     if a.name == "table1":                       # the saturation search of Table 1 (issue #16)
         from ..experiments import table1
-        table1.run(out, seeds=parse_seeds(a.seeds or "1-3"))
+        table1.run(out, seeds=parse_seeds(a.seeds or "1-3"), profile=a.profile)
         print((out / "summary.md").read_text())
         return 0
     kw: dict[str, float] = {} if a.duration is None else {"duration": a.duration}
