@@ -84,3 +84,16 @@ def test_table1_summary_states_found_maxima_next_to_the_paper():
     md = markdown(res)
     assert "| ALOHA | 75.0 ± 1.0 | 62.5 | 40.0 ± 1.0 | 30 |" in md
     assert "RF 2.50 (paper 2.27), acoustic 1.00 (paper 1.09)" in md
+
+
+def test_the_original_profiles_framing_shows_in_the_delay():
+    # the original profile puts 10 B more on air per DATA frame (VariableLength2B +5, Aqua-Sim's MAC
+    # header +5): delay = intrinsic 10 ms + (20 + 10) B at 1000 bit/s + 150 m at 1500 m/s
+    from uwsimnet_zenoh.app.api import run
+    from uwsimnet_zenoh.experiments.table1 import original_overrides
+    ov = {k: v for k, v in original_overrides("aloha").items() if not k.startswith("flow.")}
+    plain = run(link(), seed=1, overrides={"flow.f.rate": 0.2}).flows["f"]
+    framed = run(link(), seed=1, overrides={**ov, "flow.f.rate": 0.2}).flows["f"]
+    assert plain["delay_mean"] == pytest.approx(0.01 + 20 * 8 / 1000 + 0.1, abs=1e-3)
+    assert framed["delay_mean"] == pytest.approx(0.01 + 30 * 8 / 1000 + 0.1, abs=1e-3)
+    assert framed["throughput"] == pytest.approx(plain["throughput"])     # payload B/s, not bytes on air
