@@ -199,4 +199,5 @@ def test_phy_layer_per_over_seeds_pools_frames_and_gives_wilson_intervals():
 def test_experiment_seeds_only_where_they_apply(tmp_path):
     r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "experiment", "hil-formation", "--seeds", "1-3",
                         "--out", str(tmp_path)], capture_output=True, text=True)
-    assert r.returncode == 2 and r.stderr.strip() == "uwsimnet experiment: --seeds applies to phy-layer, twinbot and table1"
+    assert r.returncode == 2
+    assert r.stderr.strip() == "uwsimnet experiment: --seeds applies to phy-layer, twinbot and table1"
