@@ -145,14 +145,14 @@ def test_an_interrupted_campaign_resumes_with_the_missing_runs_only(tmp_path):
 
 
 def test_a_failing_run_is_recorded_and_the_others_complete(tmp_path):
-    # maxRetries -1 passes the override check (a text parameter) and fails when the MAC is built
-    c = cp.Campaign(scenes=[str(TWO_NODES)], sets={"device.*.mac": ["aloha"], "device.*.mac.maxRetries": ["2", "-1"]},
+    # maxRetries -2 passes the override check (a text parameter) and fails when the MAC is built (-1: no limit)
+    c = cp.Campaign(scenes=[str(TWO_NODES)], sets={"device.*.mac": ["aloha"], "device.*.mac.maxRetries": ["2", "-2"]},
                     seeds=[1, 2], out=tmp_path / "o", duration=10)
     rep = cp.execute(c)
     rows = _rows(c.out)
     bad = [r for r in rows if r["status"] == "error"]
     assert rep["failed"] == 2 and len(rows) == 4 and len(bad) == 2
-    assert all(r["param.device.*.mac.maxRetries"] == "-1" and "maxRetries: must be >= 0" in r["error"] for r in bad)
+    assert all(r["param.device.*.mac.maxRetries"] == "-2" and "maxRetries: must be >= -1" in r["error"] for r in bad)
     assert "## Failed runs" in (c.out / "summary.md").read_text()
 
 
@@ -199,4 +199,5 @@ def test_phy_layer_per_over_seeds_pools_frames_and_gives_wilson_intervals():
 def test_experiment_seeds_only_where_they_apply(tmp_path):
     r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "experiment", "hil-formation", "--seeds", "1-3",
                         "--out", str(tmp_path)], capture_output=True, text=True)
-    assert r.returncode == 2 and r.stderr.strip() == "uwsimnet experiment: --seeds applies to phy-layer and twinbot"
+    assert r.returncode == 2
+    assert r.stderr.strip() == "uwsimnet experiment: --seeds applies to phy-layer, twinbot and table1"

@@ -79,7 +79,7 @@ def test_registry_entry_point_and_errors(monkeypatch):
 
 
 @pytest.mark.parametrize("mac,params,msg", [
-    ("aloha", {"maxRetries": "-1"}, "maxRetries: must be >= 0"),
+    ("aloha", {"maxRetries": "-2"}, "maxRetries: must be >= -1"),   # -1: no limit (Aqua-Sim)
     ("aloha", {"maxRetries": "1.5"}, "maxRetries: expected an integer"),
     ("aloha", {"backoffMax": "x"}, "backoffMax: expected a number"),
     ("aloha", {"backoffMin": "2", "backoffMax": "1"}, "smaller than backoffMin"),

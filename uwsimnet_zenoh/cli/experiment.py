@@ -25,7 +25,7 @@ def _twinbot_seeds(a: argparse.Namespace, out: Path) -> int:
     print(f"figures (bars with 95 % intervals) and results in {c.out}/")
     return 1 if report["failed"] else 0
 
-NAMES = ("phy-layer", "twinbot", "hil-formation")
+NAMES = ("phy-layer", "twinbot", "hil-formation", "table1")
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -38,7 +38,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     ap.add_argument("--virtual", action="store_true", help="hil-formation: the virtual-time model only")
     ap.add_argument("--speed", type=float, help="hil-formation: simulated seconds per wall second (default 1)")
     ap.add_argument("--seeds", help="phy-layer: PER per distance bin over these seeds (Wilson intervals);"
-                                    " twinbot: the three MACs over these seeds with 95 %% intervals")
+                                    " twinbot: the three MACs over these seeds with 95 %% intervals;"
+                                    " table1: the saturation search over these seeds (default 1-3)")
+    ap.add_argument("--profile", choices=("default", "original"), default="default",
+                    help="table1: 'original' = the original's framing (+10 B on DATA), 500 B FIFO, no retry limit,"
+                         " unicast support/buoy (approximated with headerBytes)")
     ap.add_argument("--workers", type=int, default=1, help="twinbot --seeds: worker processes")
     ap.set_defaults(fn=run)
 
@@ -51,10 +55,15 @@ def run(a: argparse.Namespace) -> int:
     if a.speed is not None and (a.virtual or not a.speed > 0):
         raise UserError("uwsimnet experiment: --speed: a number > 0, for the real-time run")
     if a.seeds is not None and a.name == "hil-formation":
-        raise UserError("uwsimnet experiment: --seeds applies to phy-layer and twinbot")
+        raise UserError("uwsimnet experiment: --seeds applies to phy-layer, twinbot and table1")
     out = Path(a.out or f"out/{a.name}")
     if a.seeds is not None and a.name == "twinbot":
         return _twinbot_seeds(a, out)
+    if a.name == "table1":                       # the saturation search of Table 1 (issue #16)
+        from ..experiments import table1
+        table1.run(out, seeds=parse_seeds(a.seeds or "1-3"), profile=a.profile)
+        print((out / "summary.md").read_text())
+        return 0
     kw: dict[str, float] = {} if a.duration is None else {"duration": a.duration}
     if a.speed is not None:
         kw["speed"] = a.speed

@@ -95,7 +95,7 @@ class CsAloha(OneFrameMac):
 
     def __init__(self, ctx: MacContext, params: dict[str, str]) -> None:
         super().__init__(ctx, params)
-        self.max_retries = number(self, "maxRetries", 3, minimum=0, integer=True)
+        self.max_retries = number(self, "maxRetries", 3, minimum=-1, integer=True)   # -1: no limit (Aqua-Sim)
         self.backoff_min = number(self, "backoffMin", 0.0, minimum=0.0)
         self.backoff_max = number(self, "backoffMax", 1.5, minimum=0.0)
         if self.backoff_max < self.backoff_min:

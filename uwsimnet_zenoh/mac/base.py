@@ -148,9 +148,10 @@ class OneFrameMac(Mac):
 
     def _retry(self) -> bool:
         """Count a failed attempt of `cur`; past `max_retries` give it up (dropped `retry`, status
-        `failed`) and go on with the next frame.  Whether `cur` gets another attempt."""
+        `failed`) and go on with the next frame.  Whether `cur` gets another attempt.  A negative
+        `max_retries` (maxRetries -1) means no limit, as in Aqua-Sim NG's ALOHA and S-FAMA."""
         self.fails += 1
-        if self.fails <= self.max_retries:
+        if self.max_retries < 0 or self.fails <= self.max_retries:
             return True
         frame = self.cur
         self.cur = None

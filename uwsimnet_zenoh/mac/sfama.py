@@ -64,7 +64,7 @@ class SFama(OneFrameMac):
         super().__init__(ctx, params)
         self.max_backoff = max(MIN_BACKOFF_SLOTS, number(self, "maxBackoffSlots", MIN_BACKOFF_SLOTS,
                                                          minimum=1, integer=True))
-        self.max_retries = number(self, "maxRetries", 7, minimum=0, integer=True)
+        self.max_retries = number(self, "maxRetries", 7, minimum=-1, integer=True)   # -1: no limit (Aqua-Sim)
         self.rts_size = ctrl_size(self, "rtsSize", RTS_CTS_HEADER)
         self.cts_size = ctrl_size(self, "ctsSize", RTS_CTS_HEADER)
         self.ack_size = ctrl_size(self, "ackSize", MAC_HEADER)
