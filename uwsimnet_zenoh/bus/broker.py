@@ -270,7 +270,7 @@ class Broker:
         ep = self.endpoints.get(dev)
         if ep is None:
             if self.channels is None:                   # we serve the whole scene: nobody else will answer
-                self._refuse(dev, "unknown", "no such modem in this world")
+                self._refuse(dev, "unknown", "no such modem in this world", wire.tag_of(raw, self.tx_limit))
             else:
                 self.counters["unknown"] += 1
             return
