@@ -7,6 +7,7 @@ from typing import Any
 
 from rich.table import Table
 
+from ..trace.events import finite
 from .metrics import FlowMetrics
 
 # -- rendering ----------------------------------------------------------------------------------
@@ -60,7 +61,7 @@ def format_text(metrics: Mapping[str, FlowMetrics]) -> str:
 
 def report_json(metrics: Mapping[str, FlowMetrics]) -> dict[str, Any]:
     """JSON-ready report: `{"version": 1, "flows": {name: FlowMetrics.to_dict()}}`."""
-    return {"version": 1, "flows": {name: m.to_dict() for name, m in metrics.items()}}
+    return finite({"version": 1, "flows": {name: m.to_dict() for name, m in metrics.items()}})
 
 
 def markdown_table(header: list[str], rows: list[list[str]]) -> str:

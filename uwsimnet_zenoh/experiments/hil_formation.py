@@ -27,6 +27,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from ..trace.events import finite
 from .hil_spec import (
     DEPTH,
     DURATION,
@@ -217,5 +218,5 @@ def run(out: Path, *, duration: float = DURATION, figure: Path | None = None) ->
         write_errors(r, out / f"{mac}.errors.csv")
     lines = table(st, "HIL formation (virtual time): waypoint distance error")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    (out / "summary.json").write_text(json.dumps({"virtual": st}, indent=2))
+    (out / "summary.json").write_text(json.dumps(finite({"virtual": st}), indent=2, allow_nan=False))
     return st

@@ -35,6 +35,7 @@ from ..analysis import read_trace
 from ..bus.clock import WorldClock
 from ..bus.session import make_config, open_session
 from ..errors import UserError
+from ..trace.events import finite
 from . import hil_formation as h
 from . import hil_spec as spec
 from .processes import PY, ProcessError, Processes
@@ -174,5 +175,5 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0,
             lines.append(f"| {spec.PROTOCOLS[mac]} | {n} | {a:.3f} | {b:.3f} | {a - b:+.3f} |")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     summary = {"realtime": st, "virtual": st_model, "duration": duration, "speed": speed}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     return st

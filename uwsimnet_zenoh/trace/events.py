@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 from collections import Counter
 from collections.abc import Callable
 from typing import IO, Any
@@ -40,7 +41,7 @@ class Tracer:
         if fifo is not None:
             rec["fifo"] = fifo
         if dist is not None:
-            rec["dist"] = round(float(dist), 3)
+            rec["dist"] = round(float(dist), 3) if math.isfinite(dist) else None   # JSON has no inf/NaN
         if implicit:
             rec["implicit"] = True      # rx of a frame addressed to another modem (no MAC: implicit broadcast)
         for sink in self.sinks:
@@ -57,13 +58,30 @@ class JsonlSink:
 
     def __init__(self, fh: IO[str]) -> None:
         self._write = fh.write
-        self._dumps = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False).encode
+        self._enc = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False, allow_nan=False).encode
+
+    def _dumps(self, rec: Record) -> str:
+        try:
+            return self._enc(rec)
+        except ValueError:                  # a NaN or an infinity somewhere: written as null (valid JSON)
+            return self._enc(finite(rec))
 
     def __call__(self, rec: Record) -> None:
         self._write(self._dumps(rec) + "\n")
 
     def header(self, meta: Record) -> None:
         self._write(self._dumps(meta) + "\n")
+
+
+def finite(v: Any) -> Any:
+    """`v` with every non-finite float replaced by None (docs/trace-format.md: null)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: finite(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [finite(x) for x in v]
+    return v
 
 
 class CallbackSink:
