@@ -329,6 +329,9 @@ class Broker:
             self.warn("pose_unknown", "pose for unknown vehicle %r ignored", name)
             return
         if v.pose_source != "zenoh":
+            if self.channels is not None:           # another broker of this world publishes it too:
+                self.counters["pose_peer"] += 1     # expected, counted, no warning (two would flood)
+                return
             self.counters["pose_ignored"] += 1
             self.warn(f"pose_ignored:{name}", "pose for %s ignored: the scene drives it (poseSource scene)",
                       name)
