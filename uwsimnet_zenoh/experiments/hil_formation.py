@@ -161,7 +161,9 @@ def plot(results: dict[str, dict[str, Any]], path: Path,
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 2, figsize=(12, 7), sharex=True)
-    colors = {"aloha": "tab:blue", "sfama": "tab:red"}
+    from ..analysis.figures import protocol_colour
+
+    colors = {mac: protocol_colour(PROTOCOLS[mac]) for mac in PROTOCOLS}     # as in Fig. 7
     for i, (ax, n) in enumerate(zip(axes.flat, VEHICLES, strict=True)):
         for mac, res in results.items():
             ax.plot(res["t"], res["error"][n], color=colors[mac], lw=1.2, label=PROTOCOLS[mac])
