@@ -5,7 +5,8 @@ wind 0 m/s), log distance axis.  Solid lines are the presets as shipped (receive
 rated range, marked with a dot); dashed lines are the same modems on an ideal AWGN link (margin 0 dB).
 Also prints a table of the distances at which PER reaches 10 % and 50 %.
 
-Run: .venv/bin/python bench/acoustic_range_curves.py -o docs/figures
+Run: .venv/bin/python bench/acoustic_range_curves.py        # -> out/acoustic/ (docs/figures/ holds the
+copy the documentation shows; replace it by hand when the model changes)
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ FRAME_BYTES = 64
 
 def main(argv: list[str] | None = None) -> Path:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("-o", "--out", default="docs/figures", help="output directory (default docs/figures)")
+    ap.add_argument("-o", "--out", default="out/acoustic", help="output directory (default out/acoustic)")
     ap.add_argument("--size", type=int, default=FRAME_BYTES, help="frame size in bytes (default 64)")
     args = ap.parse_args(argv)
     out = Path(args.out)

@@ -3,10 +3,13 @@
 The scenario is uwsimnet_zenoh.experiments.capture: N sensors every 200 m on a line, the sink at one end,
 ns-3-like FSK PHY (1000 bit/s, 22 kHz, 4 kHz band, SL 190 dB), Thorp absorption, k = 1.5, 40-byte frames,
 Poisson traffic, no MAC and no queue.  Writes <out>/capture-throughput.png (throughput vs offered load;
-success probability per sensor position at one load) and prints a markdown table.  With --ns3 FILE (JSON
-written by bench/ns3_capture.py) the ns-3 UAN points are drawn on the same axes.
+success probability per sensor position at one load) and prints a markdown table with the ns-3 UAN
+column.  The ns-3 points (bench/reference/ns3_capture.json, written by bench/ns3_capture.py against the
+ns-3.44 wheel) are in the repository and drawn on the same axes; --ns3 FILE uses another run of it,
+--ns3 none draws none.
 
-Run: .venv/bin/python bench/capture_line.py -o docs/figures [--ns3 /tmp/ns3_capture.json]
+Run: .venv/bin/python bench/capture_line.py            # -> out/capture/ (never docs/: the documented
+                                                       #    figure is replaced by hand, cp out/capture/...)
 """
 
 from __future__ import annotations
@@ -24,6 +27,10 @@ import numpy as np  # noqa: E402
 
 from uwsimnet_zenoh.experiments import capture as C  # noqa: E402
 
+HERE = Path(__file__).resolve().parent
+NS3_REFERENCE = HERE / "reference" / "ns3_capture.json"
+"""ns-3.44 UAN on the same scenario (bench/ns3_capture.py; N = 16, 20 000 frame-times per point, seed 1)."""
+
 LOADS = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
 LABELS = {"binary": "binary rule (any overlap loses both)",
           "threshold": f"capture any: min SINR >= {C.THRESHOLD_DB:g} dB",
@@ -35,13 +42,15 @@ COLOURS = {"binary": "tab:grey", "threshold": "tab:blue", "per": "tab:orange", "
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("-o", "--out", default="docs/figures")
+    ap.add_argument("-o", "--out", default="out/capture", help="output folder (default out/capture)")
     ap.add_argument("--nodes", type=int, default=16)
     ap.add_argument("--frames", type=float, default=20000.0, help="simulated time in frame-times per point")
     ap.add_argument("--loads", default=",".join(map(str, LOADS)))
     ap.add_argument("--detail-load", type=float, default=1.0, help="load of the per-sensor panel")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--ns3", help="JSON results of bench/ns3_capture.py to overlay")
+    ap.add_argument("--ns3", default=str(NS3_REFERENCE),
+                    help="JSON results of bench/ns3_capture.py to overlay (default: the reference run in the"
+                         " repository; 'none': no overlay)")
     ap.add_argument("--json", help="also write the results here")
     a = ap.parse_args(argv)
     loads = [float(x) for x in a.loads.split(",")]
@@ -52,7 +61,9 @@ def main(argv: list[str] | None = None) -> dict:
     t0 = time.perf_counter()
     res = {rule: {g: C.run(a.nodes, g, duration, rule, a.seed) for g in loads} for rule in C.RULES}
     wall = time.perf_counter() - t0
-    ns3 = json.loads(Path(a.ns3).read_text()) if a.ns3 else None
+    ns3 = json.loads(Path(a.ns3).read_text()) if a.ns3 and a.ns3 != "none" else None
+    if ns3 is not None and (ns3.get("nodes") != a.nodes or a.seed != ns3.get("seed")):
+        print(f"note: the ns-3 points are for N = {ns3.get('nodes')}, seed {ns3.get('seed')}")
 
     print(f"# capture on a line: N = {a.nodes}, spacing {C.SPACING_M:g} m, {a.frames:g} frame-times per point,"
           f" seed {a.seed} ({wall:.0f} s wall)")

@@ -37,7 +37,7 @@ async def run(world: World, count: int | None, interval: float) -> None:
             st = await asyncio.to_thread(alpha.wait_status, tag, timeout=5.0)
             if st is None:
                 print(f"ping_app: ping {n}: no status", flush=True)
-            elif st.event == "sent":
+            elif st.event in ("sent", "acked"):
                 # the round trip counts from when the modem accepted the ping (its `queued` status)
                 sent_at[n] = next((s.t for s in alpha.statuses(tag) if s.event == "queued"), st.t)
                 print(f"ping_app: ping {n} sent at t={sent_at[n]:.3f} s", flush=True)

@@ -299,7 +299,7 @@ def test_instant_message_round_trip_with_modelled_delay(world, drivers):
     assert f.meta["kind"] == "im" and f.meta["flag"] == "ack" and f.meta["duration_us"] == dur
     assert -120 <= f.rssi < -20 and 100 < f.integrity <= 255
     events = [s.event for _, s in st]
-    assert events == ["queued", "sent", "acked"] and all(s.tag == 41 for _, s in st)
+    assert events == ["queued", "transmitted", "acked"] and all(s.tag == 41 for _, s in st)
     t_ack = next(t for t, s in st if s.event == "acked")
     assert t_ack - t_rx >= 0.1 + 0.14                                 # it travels back, 147 ms on air
     assert db.query("?T") == "100000"                                # propagation time, us
@@ -322,7 +322,7 @@ def test_burst_data_and_two_way_traffic(world, drivers):
     assert f.data == big and f.meta["kind"] == "burst" and f.meta["bitrate"] == 2000
     assert f.meta["prop_time_us"] == 200000
     assert rx_a[0].data == b"pong"
-    assert [s.event for s in st if s.tag == 1] == ["queued", "sent", "acked"]
+    assert [s.event for s in st if s.tag == 1] == ["queued", "transmitted", "acked"]
     assert db.counters["status_dropped"] == 1
 
 
@@ -508,8 +508,8 @@ def test_driver_reconnects_with_backoff_and_keeps_queued_frames(drivers):
         assert d.counters["connect_failures"] >= 1
         emu = EvoLogicsEmulator(w.backend("a-dev"), port=port)
         emu.start()
-        assert until(lambda: d.state == "open" and any(s.event == "sent" for s in st))
-        assert [s.event for s in st][:2] == ["queued", "sent"]
+        assert until(lambda: d.state == "open" and any(s.event == "transmitted" for s in st))
+        assert [s.event for s in st][:2] == ["queued", "transmitted"]
     finally:
         emu.close()
         w.close()

@@ -58,6 +58,9 @@ def test_one_command_runs_the_hil_experiment_as_processes(tmp_path: Path):
                         "--duration", f"{DURATION:g}", "--out", str(out)],
                        capture_output=True, text=True, timeout=DURATION + 120)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    # piped: the progress is plain lines (a rich bar would print nothing), from 0 to the end
+    progress = [ln for ln in r.stdout.splitlines() if ln.startswith("HIL formation, real time: ")]
+    assert progress[0].startswith("HIL formation, real time: 0/") and progress[-1].endswith("(100%)"), r.stdout
     assert (out / "fig9-hil-formation.png").stat().st_size > 20_000
     logs = out / "logs"
     for mac in spec.PROTOCOLS:

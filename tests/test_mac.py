@@ -107,7 +107,7 @@ def test_cs_aloha_exchange_timeline_and_statuses():
     assert rx["t"] == pytest.approx(1.002 + 0.1 + 0.2)
     assert (ack["t"], ack["src"], ack["dst"], ack["seq"], ack["size"]) == (pytest.approx(1.304), 2, 1, 0, 5)
     assert ack_rx["t"] == pytest.approx(1.304 + 0.1 + 0.04)
-    assert st == [(1.0, 0, "queued", None), (1.202, 0, "sent", None), (1.444, 0, "acked", None)]
+    assert st == [(1.0, 0, "queued", None), (1.202, 0, "transmitted", None), (1.444, 0, "acked", None)]
     assert not rec.ev("drop")
 
 
@@ -130,7 +130,7 @@ def test_cs_aloha_lost_acks_retransmit_then_give_up_and_deliver_once():
         assert 0.5 <= gap <= 0.6 + 1e-9
     (drop,) = rec.ev("drop", dev="a", kind="data")
     assert drop["reason"] == "retry"
-    assert [e for _, _, e, _ in st] == ["queued", "sent", "sent", "sent", "sent", "dropped", "failed"]
+    assert [e for _, _, e, _ in st] == ["queued"] + ["transmitted"] * 4 + ["failed"]
     f = analyse(rec.records, rec.net.meta()).flows["a"]
     assert f.delivered == 1 and f.drops == {} and f.superseded == {"retry": 1}
     conserved(rec)
@@ -257,7 +257,7 @@ def test_sfama_handshake_timeline():
     assert ack_slot <= n + 2 + d and slot_of(ack) == pytest.approx(ack_slot) and ack["size"] == 5
     (rx,) = rec.ev("rx", dev="b", kind="data")
     assert rx["t"] == pytest.approx((n + 2) * SLOT + 0.302)
-    assert [e for _, _, e, _ in st] == ["queued", "sent", "acked"]
+    assert [e for _, _, e, _ in st] == ["queued", "transmitted", "acked"]
     assert st[-1][0] == pytest.approx(ack_slot * SLOT + 0.002 + 0.1 + 0.04)
     assert not rec.ev("drop")
 
@@ -289,7 +289,7 @@ def test_sfama_no_cts_means_retries_then_a_retry_drop():
     at(rec, 1.0, "a", 2, 25)                 # b is 150 m away, beyond a's 100 m range: no CTS ever
     rec.run()
     assert len(txs(rec, "a", "ctrl")) == 3 and not txs(rec, "a", "data")
-    assert [e for _, _, e, _ in st] == ["queued", "dropped", "failed"]
+    assert [e for _, _, e, _ in st] == ["queued", "failed"]
     assert rec.ev("drop", dev="a")[0]["reason"] == "retry"
     conserved(rec)
 
@@ -322,7 +322,7 @@ def test_sfama_lost_ack_retransmits_and_the_receiver_delivers_once():
     rec.run()
     assert len(txs(rec, "a", "data")) == 2
     assert len(rec.ev("rx", dev="b", kind="data")) == 1
-    assert [e for _, _, e, _ in st] == ["queued", "sent", "sent", "acked"]
+    assert [e for _, _, e, _ in st] == ["queued", "transmitted", "transmitted", "acked"]
     conserved(rec)
 
 

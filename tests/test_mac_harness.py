@@ -23,7 +23,7 @@ def test_cs_aloha_idle_channel_sends_at_once_then_waits_for_the_ack():
     f = h.offer(dst=2, size=20)
     assert h.effects() == [("transmit", f)]
     h.tx_done()
-    assert h.effects() == [("status", f, "sent")]
+    assert h.effects() == [("status", f, "transmitted")]     # an ACK is awaited: not final
     h.receive(h.ack_for(f))
     eff = h.effects()
     assert [e[0] for e in eff] == ["trace_rx", "status"] and eff[1][2] == "acked"

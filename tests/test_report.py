@@ -21,6 +21,7 @@ from uwsimnet_zenoh.analysis import (
     report_json,
 )
 from uwsimnet_zenoh.analysis.figures import compare_markdown, compare_table, plot_compare, plot_trace
+from uwsimnet_zenoh.analysis.tables import FlowTable
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -337,7 +338,8 @@ def test_gzip_trace(tmp_path, main_trace):
 def test_renderings(main_trace):
     a = analyse(main_trace)
     table = format_report(a.flows)
-    assert isinstance(table, Table) and table.row_count == 2
+    assert isinstance(table, FlowTable) and len(table.rows) == 2
+    assert all(isinstance(t, Table) for t in table.layout(80))
     text = format_text(a.flows)
     lines = text.splitlines()
     assert lines[0].split()[0] == "flow" and len(lines) == 4

@@ -35,7 +35,8 @@
 
 #define MAX_BODY (64 + 2048)
 
-static const char *EVENTS[] = {"queued", "sent", "dropped", "acked", "failed", "delivered", "lost"};
+static const char *EVENTS[] = {"queued", "sent", "dropped", "acked", "failed", "delivered", "lost",
+                               "transmitted"};
 
 static uint16_t get16(const unsigned char *p) { return (uint16_t)((p[0] << 8) | p[1]); }
 static uint32_t get32(const unsigned char *p) {

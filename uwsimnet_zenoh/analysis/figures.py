@@ -47,6 +47,30 @@ ROWS: tuple[tuple[str, str, str], ...] = (
     ("fifo", "fifo drop", "purple"),
 )
 OTHER = ("other", "other drop", "saddlebrown")
+
+# One colour per MAC protocol in every figure (Fig. 7 and its variants, Fig. 9), whatever the labels
+# present or their order; labels are matched case-insensitively without '-', '_' and spaces.
+PROTOCOL_COLOURS: dict[str, str] = {
+    "nomac": "tab:blue", "none": "tab:blue",
+    "aloha": "tab:orange", "csaloha": "tab:orange",
+    "sfama": "tab:green", "slottedfama": "tab:green",
+    "slottedaloha": "tab:purple",
+}
+_SPARE_COLOURS = ("tab:red", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:grey")
+FIFO_BINS = 100
+"""A FIFO series with more than 2 x this many steps is drawn per time bin (mean, and the max as a light
+band) instead of step by step: many 0 -> full -> 0 steps per pixel otherwise fill the panel as a solid
+block."""
+
+
+def protocol_colour(label: str, others: list[str] | None = None) -> str:
+    """The fixed colour of a protocol label; an unknown label gets a spare colour by its position in
+    `others` (the unknown labels of the same figure, in order)."""
+    key = "".join(ch for ch in label.lower() if ch.isalnum())
+    if key in PROTOCOL_COLOURS:
+        return PROTOCOL_COLOURS[key]
+    i = others.index(label) if others and label in others else 0
+    return _SPARE_COLOURS[i % len(_SPARE_COLOURS)]
 _ROW_KEYS = {k for k, _, _ in ROWS}
 
 
@@ -194,10 +218,45 @@ def _panel_flow(ax: Axes, c: _Collected, flow: str) -> None:
     _legend(ax)
 
 
-def _panel_fifo(ax: Axes, c: _Collected) -> None:
-    for dev, s in sorted(c.fifo.items()):
+def fifo_bins(t: np.ndarray, f: np.ndarray, x0: float, x1: float, n: int = FIFO_BINS
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(bin starts, time-weighted mean, max) of the step function f (value f[k] from t[k] to t[k+1],
+    0 before t[0]) over `n` equal bins of [x0, x1]."""
+    order = np.argsort(t, kind="stable")
+    t, f = t[order], f[order].astype(float)
+    edges = np.linspace(x0, x1, n + 1)
+    # integral of the step function up to each edge
+    tt = np.concatenate(([min(x0, t[0])], t))
+    ff = np.concatenate(([0.0], f))
+    cum = np.concatenate(([0.0], np.cumsum(ff[:-1] * np.diff(tt))))
+    k = np.clip(np.searchsorted(tt, edges, side="right") - 1, 0, len(tt) - 1)
+    area = cum[k] + ff[k] * (edges - tt[k])
+    width = np.diff(edges)
+    mean = np.diff(area) / np.where(width > 0, width, 1.0)
+    # max: the value carried into the bin, and every value set inside it
+    carried = ff[k[:-1]]
+    lo = np.searchsorted(tt, edges[:-1], side="left")      # the steps inside [edge i, edge i+1)
+    hi = np.searchsorted(tt, edges[1:], side="left")
+    mx = carried.copy()
+    for j in np.flatnonzero(hi > lo):           # n bins at most: a loop is cheap
+        mx[j] = max(mx[j], float(ff[lo[j]:hi[j]].max()))
+    return edges[:-1], mean, mx
+
+
+def _panel_fifo(ax: Axes, c: _Collected, x0: float = 0.0, x1: float | None = None) -> None:
+    for i, (dev, s) in enumerate(sorted(c.fifo.items())):
         t, f = s.arrays()
-        ax.step(t, f, where="post", lw=1.0, alpha=0.8, label=dev)
+        colour = f"C{i}"
+        if len(t) <= 2 * FIFO_BINS:
+            ax.step(t, f, where="post", lw=1.0, alpha=0.8, color=colour, label=dev)
+            continue
+        hi = x1 if x1 is not None else float(t.max())
+        b, mean, mx = fifo_bins(t, f, x0, hi if hi > x0 else x0 + 1.0)
+        step = (hi - x0) / FIFO_BINS if hi > x0 else 1.0
+        ax.fill_between(np.append(b, b[-1] + step), np.append(mx, mx[-1]), step="post", color=colour,
+                        alpha=0.18, lw=0, label=f"{dev}: max per {step:.2g} s")
+        ax.step(np.append(b, b[-1] + step), np.append(mean, mean[-1]), where="post", lw=1.6, color=colour,
+                label=f"{dev}: mean per {step:.2g} s")
     ax.set_ylabel("tx FIFO (bytes)")
     ax.set_title("occupancy of the transmission FIFO", fontsize=10, loc="left")
     ax.grid(True, alpha=0.3)
@@ -227,7 +286,7 @@ def plot_trace(path: str | PathLike[str], out_dir: str | PathLike[str]) -> list[
         if c.dots.get(flow):
             panels.append((2.2 + 0.1 * len(ROWS), lambda ax, f=flow: _panel_flow(ax, c, f)))
     if c.fifo:
-        panels.append((2.4, lambda ax: _panel_fifo(ax, c)))
+        panels.append((2.4, lambda ax: _panel_fifo(ax, c, x0, x1)))
     if panels:
         fig = Figure(figsize=(12, 0.6 + sum(h for h, _ in panels)), layout="constrained")
         axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False,
@@ -301,6 +360,7 @@ def plot_compare(traces: Mapping[str, TraceOrMetrics], out_dir: str | PathLike[s
     if not flows or not per_label:
         return []
     labels = list(per_label)
+    spare = [lb for lb in labels if "".join(ch for ch in lb.lower() if ch.isalnum()) not in PROTOCOL_COLOURS]
     n = len(labels)
     width = 0.8 / n
     x = np.arange(len(flows), dtype=float)
@@ -309,13 +369,20 @@ def plot_compare(traces: Mapping[str, TraceOrMetrics], out_dir: str | PathLike[s
     for p, ((name, get, unit), ax) in enumerate(zip(METRICS, axes, strict=True)):
         any_value = False
         for i, label in enumerate(labels):
-            vals = []
+            vals, none = [], []
             for f in flows:
                 m = per_label[label].get(f)
                 v = get(m) if m is not None else None
                 vals.append(np.nan if v is None else float(v))
                 any_value = any_value or v is not None
-            ax.bar(x + (i - (n - 1) / 2) * width, vals, width, label=label, color=f"C{i}")
+                # nothing delivered (or no such flow): no value, which is not a value of 0
+                none.append(m is None or m.delivered == 0)
+            colour = protocol_colour(label, spare)
+            xs = x + (i - (n - 1) / 2) * width
+            ax.bar(xs, vals, width, label=label, color=colour)
+            if any(none):
+                ax.plot(xs[np.array(none)], np.zeros(sum(none)), linestyle="none", marker="x", ms=7, mew=1.8,
+                        color=colour, clip_on=False, zorder=3)
         ax.set_xticks(x)
         crowded = len(flows) > 6
         ax.set_xticklabels(flows, rotation=30 if crowded else 0, ha="right" if crowded else "center",
@@ -325,6 +392,10 @@ def plot_compare(traces: Mapping[str, TraceOrMetrics], out_dir: str | PathLike[s
         ax.grid(True, axis="y", alpha=0.3)
         if not any_value:
             ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center", color="grey")
+        if p == 0 and any(per_label[lb].get(f) is None or per_label[lb][f].delivered == 0
+                          for lb in labels for f in flows):
+            ax.plot([], [], linestyle="none", marker="x", ms=7, mew=1.8, color="black",
+                    label="nothing delivered (no value, not 0)")
         if p == 0:
             ax.legend(fontsize=9)
     fig.suptitle(title or "MAC comparison per flow", fontsize=12)

@@ -7,6 +7,7 @@ from typing import Any
 
 from rich.table import Table
 
+from ..trace.events import finite
 from .metrics import FlowMetrics
 
 # -- rendering ----------------------------------------------------------------------------------
@@ -32,15 +33,76 @@ def _row(m: FlowMetrics) -> list[str]:
             _f(m.delay_mean), _f(m.delay_median), _f(m.delay_p95), _f(m.jitter), _drops_str(m.drops)]
 
 
-def format_report(metrics: Mapping[str, FlowMetrics], title: str | None = "Per-flow metrics") -> Table:
-    """A rich Table of the per-flow metrics."""
-    table = Table(title=title)
-    for i, c in enumerate(_COLUMNS):
-        table.add_column(c, justify="left" if i < 2 or i == len(_COLUMNS) - 1 else "right",
-                         no_wrap=i < len(_COLUMNS) - 1)
-    for m in metrics.values():
-        table.add_row(*_row(m))
-    return table
+_LEFT = {0, 1, len(_COLUMNS) - 1}
+_KEY = 1
+"""Columns repeated in every part of a split table (flow), so each part reads on its own."""
+
+
+def _groups(widths: list[int], fit: int, cost: int) -> list[list[int]]:
+    """Column indices in parts whose width (each column `w + cost`, plus one) fits in `fit`; the key
+    columns (the flow) start every part; None if even key + one column does not fit."""
+    key = list(range(_KEY))
+    base = 1 + sum(widths[i] + cost for i in key)
+    parts: list[list[int]] = []
+    cur: list[int] = []
+    used = base
+    for i in range(_KEY, len(widths)):
+        w = widths[i] + cost
+        if cur and used + w > fit:
+            parts.append(key + cur)
+            cur, used = [], base
+        cur.append(i)
+        used += w
+    if cur:
+        parts.append(key + cur)
+    return parts
+
+
+class FlowTable:
+    """The per-flow table as a rich renderable that fits the width it is given: one table when it
+    fits; else several tables, each with the flow column and as many of the others as fit (wrapped);
+    on a width too narrow for even that, one two-column table (metric, value) per flow (stacked).
+    Cells are never cut ("..."): every column is as wide as its longest cell."""
+
+    def __init__(self, metrics: Mapping[str, FlowMetrics], title: str | None = "Per-flow metrics") -> None:
+        self.rows = [_row(m) for m in metrics.values()]
+        self.title = title
+
+    def _table(self, cols: list[int], title: str | None) -> Table:
+        t = Table(title=title)
+        for i in cols:
+            t.add_column(_COLUMNS[i], justify="left" if i in _LEFT else "right", no_wrap=True, overflow="fold")
+        for r in self.rows:
+            t.add_row(*(r[i] for i in cols))
+        return t
+
+    def layout(self, width: int) -> list[Table]:
+        widths = [max([len(h)] + [len(r[i]) for r in self.rows]) for i, h in enumerate(_COLUMNS)]
+        cost = 3                                            # rich's box: a rule and one space each side
+        if 1 + sum(w + cost for w in widths) <= width:
+            return [self._table(list(range(len(_COLUMNS))), self.title)]
+        parts = _groups(widths, width, cost)
+        if all(1 + sum(widths[i] + cost for i in p) <= width for p in parts):
+            n = len(parts)
+            return [self._table(p, f"{self.title} ({k}/{n})" if self.title else None)
+                    for k, p in enumerate(parts, 1)]
+        out = []
+        for r in self.rows:                                 # stacked: metric | value, one table per flow
+            t = Table(title=f"{self.title}: {r[0]}" if self.title else r[0], show_header=False)
+            t.add_column(overflow="fold")
+            t.add_column(justify="right", overflow="fold")
+            for i in range(1, len(_COLUMNS)):
+                t.add_row(_COLUMNS[i], r[i])
+            out.append(t)
+        return out
+
+    def __rich_console__(self, console: Any, options: Any) -> Any:
+        yield from self.layout(options.max_width)
+
+
+def format_report(metrics: Mapping[str, FlowMetrics], title: str | None = "Per-flow metrics") -> FlowTable:
+    """A rich renderable of the per-flow metrics that fits the console's width (see FlowTable)."""
+    return FlowTable(metrics, title)
 
 
 def _plain(header: list[str] | tuple[str, ...], rows: list[list[str]], left: set[int]) -> str:
@@ -53,14 +115,23 @@ def _plain(header: list[str] | tuple[str, ...], rows: list[list[str]], left: set
     return "\n".join([line(header), "  ".join("-" * w for w in widths)] + [line(r) for r in rows]) + "\n"
 
 
-def format_text(metrics: Mapping[str, FlowMetrics]) -> str:
-    """The per-flow metrics as a plain-text table (no colours, no box characters)."""
-    return _plain(_COLUMNS, [_row(m) for m in metrics.values()], {0, 1, len(_COLUMNS) - 1})
+def format_text(metrics: Mapping[str, FlowMetrics], width: int | None = None) -> str:
+    """The per-flow metrics as a plain-text table (no colours, no box characters); with `width`, split
+    into parts that fit it (each with the flow column), never cutting a cell."""
+    rows = [_row(m) for m in metrics.values()]
+    if width is None:
+        return _plain(_COLUMNS, rows, _LEFT)
+    widths = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(_COLUMNS)]
+    if sum(w + 2 for w in widths) - 2 <= width:
+        return _plain(_COLUMNS, rows, _LEFT)
+    parts = _groups(widths, width + 1, 2)
+    return "\n".join(_plain([_COLUMNS[i] for i in p], [[r[i] for i in p] for r in rows],
+                            {k for k, i in enumerate(p) if i in _LEFT}) for p in parts)
 
 
 def report_json(metrics: Mapping[str, FlowMetrics]) -> dict[str, Any]:
     """JSON-ready report: `{"version": 1, "flows": {name: FlowMetrics.to_dict()}}`."""
-    return {"version": 1, "flows": {name: m.to_dict() for name, m in metrics.items()}}
+    return finite({"version": 1, "flows": {name: m.to_dict() for name, m in metrics.items()}})
 
 
 def markdown_table(header: list[str], rows: list[list[str]]) -> str:

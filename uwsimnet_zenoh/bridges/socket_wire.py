@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from ..errors import UwsimnetError
 
 HELLO, TX, RX, STATUS, ERROR, SUBSCRIBE = 1, 2, 3, 4, 5, 6
-EVENTS = ("queued", "sent", "dropped", "acked", "failed", "delivered", "lost")
+EVENTS = ("queued", "sent", "dropped", "acked", "failed", "delivered", "lost", "transmitted")
 MAX_DATA = 2048
 MAX_BODY = 64 + MAX_DATA
 NO_SEQ = 0xFFFFFFFF

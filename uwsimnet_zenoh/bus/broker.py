@@ -270,7 +270,7 @@ class Broker:
         ep = self.endpoints.get(dev)
         if ep is None:
             if self.channels is None:                   # we serve the whole scene: nobody else will answer
-                self._refuse(dev, "unknown", "no such modem in this world")
+                self._refuse(dev, "unknown", "no such modem in this world", wire.tag_of(raw, self.tx_limit))
             else:
                 self.counters["unknown"] += 1
             return
@@ -329,6 +329,9 @@ class Broker:
             self.warn("pose_unknown", "pose for unknown vehicle %r ignored", name)
             return
         if v.pose_source != "zenoh":
+            if self.channels is not None:           # another broker of this world publishes it too:
+                self.counters["pose_peer"] += 1     # expected, counted, no warning (two would flood)
+                return
             self.counters["pose_ignored"] += 1
             self.warn(f"pose_ignored:{name}", "pose for %s ignored: the scene drives it (poseSource scene)",
                       name)

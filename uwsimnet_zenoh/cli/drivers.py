@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import logging
 import os
 import signal
@@ -215,7 +216,11 @@ def cmd_emulate(args: argparse.Namespace) -> int:
 
     def start(be: Any) -> tuple[Any, str]:
         emu = EvoLogicsEmulator(be, args.host, args.port, interpreter=args.interpreter)
-        host, port = emu.start()
+        try:
+            host, port = emu.start()
+        except OSError as e:
+            emu.close()
+            raise _listen_error("emulate evologics", args.host, args.port, e) from None
         return emu, f"{host}:{port}"
 
     return _serve(args, "emulator evologics", start)
@@ -231,6 +236,13 @@ def _framing_arg(name: str | None) -> str | None:
         return builder(name).name
     except ValueError as e:
         raise UserError(f"--framing: {e}") from None
+
+
+def _listen_error(what: str, host: str, port: int, e: OSError) -> UserError:
+    why = e.strerror or " ".join(str(e).split())
+    hint = " (another emulator, bridge or modem server holds it? give another --port, 0 for a free one)" \
+        if e.errno == errno.EADDRINUSE else ""
+    return UserError(f"{what}: cannot listen on {host}:{port}: {why}{hint}")
 
 
 def _emulate_serial(args: argparse.Namespace) -> int:
@@ -259,7 +271,13 @@ def cmd_bridge(args: argparse.Namespace) -> int:
         if args.bridge == "socket":
             from ..bridges.socket_bridge import SocketBridge
 
-            br: Any = SocketBridge(be, args.host, args.port, args.udp_port).start()
+            br: Any = SocketBridge(be, args.host, args.port, args.udp_port)
+            try:
+                br.start()
+            except OSError as e:
+                udp = getattr(br, "_server", None) is not None        # TCP was bound: the UDP port failed
+                br.close()
+                raise _listen_error("bridge socket", args.host, args.udp_port if udp else args.port, e) from None
             return br, f"tcp {args.host}:{br.tcp_port}" + (f" udp {br.udp_port}" if br.udp_port else "")
         from ..bridges import posix_mq
         from ..bridges.mq_bridge import MqBridge

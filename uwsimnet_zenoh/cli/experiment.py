@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ..app.campaign import Campaign, execute, parse_seeds, plain_progress
 from ..errors import UserError
+from .limits import SPEED_RANGE
 
 
 def _twinbot_seeds(a: argparse.Namespace, out: Path) -> int:
@@ -52,8 +53,9 @@ def run(a: argparse.Namespace) -> int:
         raise UserError("uwsimnet experiment: --duration, --speed and --virtual apply to hil-formation only")
     if a.duration is not None and not 0 < a.duration < 1e6:
         raise UserError("uwsimnet experiment: --duration: seconds, a number > 0")
-    if a.speed is not None and (a.virtual or not a.speed > 0):
-        raise UserError("uwsimnet experiment: --speed: a number > 0, for the real-time run")
+    lo, hi = SPEED_RANGE
+    if a.speed is not None and (a.virtual or not lo <= a.speed <= hi):
+        raise UserError(f"uwsimnet experiment: --speed: a number from {lo:g} to {hi:g}, for the real-time run")
     if a.seeds is not None and a.name == "hil-formation":
         raise UserError("uwsimnet experiment: --seeds applies to phy-layer, twinbot and table1")
     out = Path(a.out or f"out/{a.name}")

@@ -18,6 +18,7 @@ from ..app import ros2
 from ..app.virtual import load_scene_file, print_summary, show_metrics, simulate
 from ..errors import UserError, UwsimnetError
 from . import deploy, drivers, experiment, sweep, view
+from .limits import DURATION_MAX, REALTIME_ONLY, SPEED_RANGE, check_numbers
 from .zenoh_flags import add_zenoh_flags
 
 DEFAULT_VIEW_ROUTER = "tcp/127.0.0.1:7447"
@@ -51,13 +52,28 @@ def cmd_router(args: argparse.Namespace) -> int:
     return run_router(args)
 
 
+def check_applies(args: argparse.Namespace, clock: str) -> None:
+    """Real-time-only options on a virtual-clock run are an error, not silently ignored."""
+    if clock == "realtime":
+        return
+    given = [o for o in REALTIME_ONLY if getattr(args, o, None) not in (None, [])]
+    if given:
+        opts = ", ".join("--" + o.replace("_", "-") for o in given)
+        raise UserError(f"{opts}: {'apply' if len(given) > 1 else 'applies'} to a real-time run only, and"
+                        f" {args.scene} runs on the virtual clock (add --clock realtime)")
+
+
 def cmd_run(args: argparse.Namespace) -> int:
+    check_numbers(args)
     scene = load_scene_file(args.scene, verbose=args.verbose)
+    clock = args.clock or default_clock(scene, args)
+    check_applies(args, clock)
     if args.world:
         scene = scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"world": args.world})})
-    clock = args.clock or default_clock(scene, args)
     if getattr(args, "ros2", False) and clock != "realtime":
         raise UserError("--ros2 runs on the realtime clock (ROS 2 nodes live in wall time): drop --clock virtual")
+    if args.speed is None:
+        args.speed = 1.0
     if clock == "realtime":
         from ..app.realtime import run_realtime  # noqa: PLC0415 - zenoh only when needed
 
@@ -95,7 +111,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     except TraceError as e:
         raise UserError(str(e)) from None
     if args.json:
-        print(json.dumps(report_json(metrics), indent=2))
+        print(json.dumps(report_json(metrics), indent=2, allow_nan=False))
     else:
         show_metrics(metrics)
     return 0
@@ -116,17 +132,26 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (the usage is one `-h` away), exit 2 as before."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} -h)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="uwsimnet", description="Underwater network simulator on Zenoh")
+    p = Parser(prog="uwsimnet", description="Underwater network simulator on Zenoh")
     sub = p.add_subparsers(dest="cmd", required=True)
 
     r = sub.add_parser("run", help="run a scene")
     r.add_argument("scene")
     r.add_argument("-v", "--verbose", action="store_true", help="list every scene warning (default: one per kind)")
     r.add_argument("--clock", choices=["virtual", "realtime"])
-    r.add_argument("--duration", type=float, help="simulated seconds (default: the scene's)")
-    r.add_argument("--speed", type=float, default=1.0,
-                   help="realtime: simulated seconds per wall second (default 1; >1 for runs without hardware)")
+    r.add_argument("--duration", type=float,
+                   help=f"simulated seconds, > 0 and <= {DURATION_MAX:g} (default: the scene's)")
+    r.add_argument("--speed", type=float,
+                   help=f"realtime: simulated seconds per wall second, {SPEED_RANGE[0]:g} to {SPEED_RANGE[1]:g}"
+                        " (default 1; >1 for runs without hardware)")
     r.add_argument("--seed", type=int, help="random seed (default: the scene's)")
     r.add_argument("--trace", help="JSONL trace file to write")
     add_zenoh_flags(r, listen=True, world="Zenoh world name (default: the scene's name)",

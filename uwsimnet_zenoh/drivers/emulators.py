@@ -532,10 +532,10 @@ class EvoLogicsEmulator:
             return
         ev = st.event
         if tx.kind == "burst":
-            if tx is self._streaming and ev in ("sent", "dropped", "failed"):
+            if tx is self._streaming and ev in ("sent", "transmitted", "dropped", "failed"):
                 self._streaming = None
                 self._io.loop.call_soon(self._pump_stream)
-            if ev == "sent":
+            if ev in ("sent", "transmitted"):    # transmitted: the simulated MAC awaits an ACK
                 tx.t_sent = time.monotonic()
                 if not tx.report:
                     self._finish(tx, True)

@@ -279,12 +279,13 @@ class EvoLogicsDriver(Driver):
                 self._answer(cmd, text)
             elif text == "OK":
                 cmd.extra["t_ok"] = time.monotonic()
-                self.emit_status(cmd, "sent")
-                if cmd.dst != at.BROADCAST:
-                    if cmd.extra["kind"] == "im" and cmd.extra.get("flag") == "ack":
-                        self._im = cmd
-                    elif cmd.extra["kind"] == "burst":
-                        self._bursts.append(cmd)
+                report = cmd.dst != at.BROADCAST and (cmd.extra["kind"] == "burst" or (
+                    cmd.extra["kind"] == "im" and cmd.extra.get("flag") == "ack"))
+                self.emit_status(cmd, "transmitted" if report else "sent")     # report: acked/failed follows
+                if report and cmd.extra["kind"] == "burst":
+                    self._bursts.append(cmd)
+                elif report:
+                    self._im = cmd
             else:
                 self.emit_status(cmd, "dropped", "error", f"unexpected answer {text!r}")
         elif isinstance(ev, at.Busy | at.Error):

@@ -27,6 +27,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from ..trace.events import finite
 from .hil_spec import (
     DEPTH,
     DURATION,
@@ -160,7 +161,9 @@ def plot(results: dict[str, dict[str, Any]], path: Path,
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 2, figsize=(12, 7), sharex=True)
-    colors = {"aloha": "tab:blue", "sfama": "tab:red"}
+    from ..analysis.figures import protocol_colour
+
+    colors = {mac: protocol_colour(PROTOCOLS[mac]) for mac in PROTOCOLS}     # as in Fig. 7
     for i, (ax, n) in enumerate(zip(axes.flat, VEHICLES, strict=True)):
         for mac, res in results.items():
             ax.plot(res["t"], res["error"][n], color=colors[mac], lw=1.2, label=PROTOCOLS[mac])
@@ -217,5 +220,5 @@ def run(out: Path, *, duration: float = DURATION, figure: Path | None = None) ->
         write_errors(r, out / f"{mac}.errors.csv")
     lines = table(st, "HIL formation (virtual time): waypoint distance error")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    (out / "summary.json").write_text(json.dumps({"virtual": st}, indent=2))
+    (out / "summary.json").write_text(json.dumps(finite({"virtual": st}), indent=2, allow_nan=False))
     return st

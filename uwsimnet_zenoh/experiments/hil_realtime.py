@@ -35,9 +35,10 @@ from ..analysis import read_trace
 from ..bus.clock import WorldClock
 from ..bus.session import make_config, open_session
 from ..errors import UserError
+from ..trace.events import finite
 from . import hil_formation as h
 from . import hil_spec as spec
-from .processes import PY, ProcessError, Processes
+from .processes import PY, ProcessError, Processes, Progress
 
 TICK = 0.1
 
@@ -124,8 +125,6 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0,
         figure: Path | None = None) -> dict[str, Any]:
     """Run both MACs in real time (about `duration` / `speed` s plus start-up; `speed` > 1 is for runs
     without hardware: every process follows the worlds' clocks); Fig. 9, summary.md/json in `out`."""
-    from rich.progress import Progress
-
     if importlib.util.find_spec("uwsimnet_gli") is None:      # the apps are uwsimnet_gli clients
         raise UserError("hil-formation: the applications need the uwsimnet_gli client: pip install -e"
                         " gli_clients/python (make does it)")
@@ -137,11 +136,10 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0,
         with open_session(make_config("client", connect=[endpoint])) as session:
             rec = Recorder(session, worlds, duration)
             try:
-                with Progress(transient=True) as bar:
-                    task = bar.add_task("HIL formation, real time", total=duration)
+                with Progress("HIL formation, real time", total=duration) as bar:
                     while (least := rec.sample()) < duration:
                         procs.check_alive()
-                        bar.update(task, completed=least)
+                        bar.update(least)
                         time.sleep(TICK / 4 / speed)
             finally:
                 rec.close()
@@ -174,5 +172,5 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0,
             lines.append(f"| {spec.PROTOCOLS[mac]} | {n} | {a:.3f} | {b:.3f} | {a - b:+.3f} |")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     summary = {"realtime": st, "virtual": st_model, "duration": duration, "speed": speed}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     return st

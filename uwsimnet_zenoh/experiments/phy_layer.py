@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..phy.error import RateErrorModel
+from ..trace.events import finite
 
 if TYPE_CHECKING:
     from ..scene.model import Scene
@@ -162,7 +163,7 @@ def run(out: Path, progress: bool = True, seeds: list[int] | None = None) -> dic
         rf = load_scene(SCENES / "phy-layer-rf.xml")
         summary["rf"]["loss_over_seeds"] = loss_over_seeds([run_one(rf, seed=s, trace=True).trace or []
                                                             for s in seeds])
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     (out / "summary.md").write_text(markdown(summary))
     return summary
 

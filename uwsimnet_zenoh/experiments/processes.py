@@ -94,3 +94,54 @@ class Processes:
 
     def __exit__(self, *exc: object) -> None:
         self.stop_all()
+
+
+class Progress:
+    """Progress of a long run: a rich bar on a terminal; plain lines when the output is piped or
+    redirected (a bar would print nothing there), one every `every` s of wall time and at the end.
+
+        with Progress("HIL formation, real time", total=240) as bar:
+            bar.update(done)
+    """
+
+    def __init__(self, label: str, total: float, *, stream=None, every: float = 10.0, unit: str = "s") -> None:
+        self.label, self.total, self.every, self.unit = label, total, every, unit
+        self.stream = stream if stream is not None else sys.stdout
+        self.done = 0.0
+        self._bar = None
+        self._task = None
+        self._last = -float("inf")
+        self._shown: float | None = None
+
+    def __enter__(self) -> Progress:
+        isatty = getattr(self.stream, "isatty", None)
+        if isatty is not None and isatty():
+            from rich.console import Console  # noqa: PLC0415 - rich only for a terminal
+            from rich.progress import Progress as Bar  # noqa: PLC0415
+
+            self._bar = Bar(transient=True, console=Console(file=self.stream))
+            self._bar.__enter__()
+            self._task = self._bar.add_task(self.label, total=self.total)
+        else:
+            self._line()
+        return self
+
+    def _line(self) -> None:
+        self._last = time.monotonic()
+        self._shown = self.done
+        pct = 100.0 * self.done / self.total if self.total else 100.0
+        print(f"{self.label}: {self.done:.0f}/{self.total:g} {self.unit} ({pct:.0f}%)", file=self.stream,
+              flush=True)
+
+    def update(self, done: float) -> None:
+        self.done = min(float(done), self.total)
+        if self._bar is not None:
+            self._bar.update(self._task, completed=self.done)
+        elif time.monotonic() - self._last >= self.every:
+            self._line()
+
+    def __exit__(self, *exc) -> None:
+        if self._bar is not None:
+            self._bar.__exit__(*exc)
+        elif exc[0] is None and self.done != self._shown:
+            self._line()

@@ -19,6 +19,8 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ..trace.events import finite
+
 SCENES = Path(__file__).resolve().parents[2] / "scenes" / "paper"
 PROTOCOLS: dict[str, tuple[str, str]] = {     # key: (macProtocol name, label in figures and tables)
     "nomac": ("none", "NOMAC"),
@@ -329,7 +331,7 @@ def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PRO
             vmetrics[PROTOCOLS[p][1]] = flows
         figs = plot_compare(vmetrics, vdir, title=f"TWINBOT scene, variant {v}: {what}")
         summary["variants"][v] = {"what": what, "runs": runs, "figures": [str(f) for f in figs]}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     (out / "summary.md").write_text(markdown(summary))
     (out / "table1.md").write_text(table1(summary["runs"]))
     return summary

@@ -130,10 +130,11 @@ class CsAloha(OneFrameMac):
             return
         self._flush_acks()          # ACKs first: their data senders are waiting for them
         if frame is self.cur and self.state == SENDING:
-            self.ctx.status(frame, "sent")
             if frame.broadcast or not self.ack_on:
+                self.ctx.status(frame, "sent")          # final: nothing will acknowledge it
                 self._done()
             else:
+                self.ctx.status(frame, "transmitted")   # this attempt is on air; acked/failed follows
                 self.state = WAIT_ACK
                 self._timer = self.ctx.timer(self.ack_timeout, self._ack_timeout)
         if self.state == SENSE and self._timer is None and not self.ctx.phy_busy:

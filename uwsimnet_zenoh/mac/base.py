@@ -40,8 +40,11 @@ class MacContext(Protocol):
     def channel_busy(self) -> bool: ...          # carrier sense: energy heard at our receiver now
     def channel_busy_until(self) -> float: ...
     def deliver(self, frame: Frame) -> None: ...   # up to the application (after the rx delay)
-    def drop(self, frame: Frame, reason: str) -> None: ...   # a frame we give up on (traced + status)
-    def status(self, frame: Frame, event: str) -> None: ...  # sent | acked ... for the application
+    def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None: ...
+    # a frame we give up on: traced `drop` + its final status (`dropped`, or `failed` after retries)
+    def status(self, frame: Frame, event: str) -> None: ...
+    # for the application: `sent` (final, unacknowledged) | `transmitted` (an attempt on air, an
+    # acknowledgement expected) | `acked` (final); docs/gli-protocol.md#status-modem--app
     def timer(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event: ...
     def tx_time(self, size: int) -> float: ...
     @property
@@ -155,8 +158,7 @@ class OneFrameMac(Mac):
             return True
         frame = self.cur
         self.cur = None
-        self.ctx.drop(frame, "retry")
-        self.ctx.status(frame, "failed")
+        self.ctx.drop(frame, "retry", event="failed")      # one final status: failed (reason retry)
         self._done()
         return False
 

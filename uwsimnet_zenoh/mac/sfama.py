@@ -109,7 +109,7 @@ class SFama(OneFrameMac):
         if self._closed or frame is not self.cur or self.state != SENDING:
             return
         ctx = self.ctx
-        ctx.status(frame, "sent")
+        ctx.status(frame, "sent" if frame.broadcast else "transmitted")    # unicast: acked/failed follows
         end = (self._n + 3 + self._d) * self.slot
         if frame.broadcast:
             self.nav = max(self.nav, end)

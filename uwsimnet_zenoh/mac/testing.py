@@ -5,7 +5,7 @@
     f = h.offer(dst=2, size=20)                               # an application frame reaches the FIFO
     assert h.effects() == [("transmit", f)]                   # what the MAC did, in order
     h.tx_done()                                               # the last bit left our transmitter
-    assert h.effects() == [("status", f, "sent")]
+    assert h.effects() == [("status", f, "transmitted")]         # not final: an ACK is awaited
     h.advance(10.0)                                           # timers fire (here: the ACK timeout)
 
 `FakeContext` implements `MacContext` with plain numbers: a transmitter that is busy from `transmit` until
@@ -85,8 +85,10 @@ class FakeContext:
     def deliver(self, frame: Frame) -> None:
         self.log.append(("deliver", frame))
 
-    def drop(self, frame: Frame, reason: str) -> None:
+    def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
         self.log.append(("drop", frame, reason))
+        if event != "dropped":          # the frame's final status is not `dropped` (`failed` after retries)
+            self.log.append(("status", frame, event))
 
     def status(self, frame: Frame, event: str) -> None:
         self.log.append(("status", frame, event))

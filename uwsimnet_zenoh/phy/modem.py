@@ -240,11 +240,13 @@ class Modem:
         for cb in self.on_receive:
             cb(self, frame, now)
 
-    def drop(self, frame: Frame, reason: str) -> None:
+    def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
+        """Give `frame` up: traced `drop` with `reason`, and its final status `event` (`dropped`; a MAC
+        that gave up after its retries says `failed`)."""
         self.counters["drop"] += 1
         self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason,
                          fifo=self.fifo_bytes)
-        self.status(frame, "dropped", reason)
+        self.status(frame, event, reason)
 
     def status(self, frame: Frame, event: str, reason: str | None = None) -> None:
         for cb in self.on_status:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib
 import io
 import json
+import math
 from collections import Counter
 from collections.abc import Callable
 from typing import IO, Any
@@ -73,7 +74,7 @@ def record(t: float, ev: str, ch: int, dev: str, frame: Frame, reason: str | Non
     if fifo is not None:
         rec["fifo"] = fifo
     if dist is not None:
-        rec["dist"] = round(float(dist), 3)
+        rec["dist"] = round(float(dist), 3) if math.isfinite(dist) else None   # JSON has no inf/NaN
     if implicit:
         rec["implicit"] = True      # rx of a frame addressed to another modem (no MAC: implicit broadcast)
     return rec

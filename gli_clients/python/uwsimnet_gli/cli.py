@@ -373,8 +373,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--count", type=int, default=1)
     s.add_argument("--interval", type=float, default=1.0, help="s between frames")
     s.add_argument("--flow", help="scene flow the frames belong to (trace attribution)")
-    s.add_argument("--wait", action="store_true", help="wait for and print each frame's final status")
-    s.add_argument("--timeout", type=float, default=5.0)
+    s.add_argument("--wait", action="store_true", help="wait for and print each frame's final status (sent;"
+                   " acked/failed with a MAC or modem that acknowledges; dropped)")
+    s.add_argument("--timeout", type=float, default=5.0, help="s to wait for the driver and for each status")
     s.set_defaults(fn=cmd_send)
 
     li = sub.add_parser("listen", help="print frames received by modems")

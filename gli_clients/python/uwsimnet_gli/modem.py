@@ -3,7 +3,8 @@
     modem = Modem(world, "bravo-modem")
     modem.wait_kind(timeout=5)                  # 'sim' or 'real' once a driver serves it
     tag = modem.send(1, b"ping")                # -> the tag its status events carry
-    st = modem.wait_status(tag, timeout=5)      # Status(tag, 'sent', None, t) ... or 'dropped' + reason
+    st = modem.wait_status(tag, timeout=5)      # its final status: 'sent' (nothing acknowledges it),
+                                                # 'acked' / 'failed' (a MAC or modem with ACKs), 'dropped'
     for frame in modem.frames(timeout=10):      # blocking iterator
         print(frame.src, frame.data)
     frame = await modem.areceive(timeout=5)     # asyncio
@@ -28,12 +29,12 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from .records import Frame, Status, read_map, read_rx, read_status
-from .wire import check_chunk, encode_tx
+from .wire import FINAL_EVENTS, check_chunk, encode_tx
 
 if TYPE_CHECKING:
     from uwsimnet_gli.world import World
 
-FINAL_EVENTS = ("sent", "dropped", "acked", "failed")
+__all__ = ["FINAL_EVENTS", "Modem"]
 _tags = itertools.count(random.SystemRandom().getrandbits(31) + 1)
 """Auto tags: per process, from a random start (two apps on one modem rarely share a tag)."""
 
@@ -187,7 +188,9 @@ class Modem:
 
     def wait_status(self, tag: int, events: Iterable[str] = FINAL_EVENTS,
                     timeout: float | None = 5.0) -> Status | None:
-        """The first status of `tag` whose event is in `events` (default: a final one), or None."""
+        """The first status of `tag` whose event is in `events`, or None after `timeout` s.  The default
+        is the frame's one final status (`FINAL_EVENTS`: sent, acked, failed, dropped): with a MAC or a
+        modem that acknowledges, `transmitted` comes first and the wait goes on to `acked`/`failed`."""
         want = set(events)
 
         def found() -> Status | None:

@@ -374,7 +374,10 @@ MAX_SMALL_MESSAGE = 4096
 MAX_REPLY_MESSAGE = 1 << 20
 """Limit for replies an application reads (info, control answers): generous, but bounded."""
 MAX_ADDRESS = 65535
-STATUS_EVENTS = ("queued", "sent", "dropped", "acked", "failed")
+STATUS_EVENTS = ("queued", "sent", "dropped", "acked", "failed", "transmitted")
+FINAL_EVENTS = ("sent", "dropped", "acked", "failed")
+"""Every frame offered on tx ends in exactly one of these (docs/gli-protocol.md, status); `queued` and
+`transmitted` (an attempt on air whose acknowledgement is awaited) are not final."""
 _INT64_MIN, _UINT64_MAX = -(2**63), 2**64 - 1
 
 
@@ -515,6 +518,17 @@ def decode_tx(raw: bytes, limit: int = MAX_TX_MESSAGE) -> TxRequest:
     if flow is not None and not isinstance(flow, str):
         raise CodecError("invalid", "'flow' must be a string or nil", tag)
     return TxRequest(dst, data, tag, flow, _msg_fields(m, "a tx message", tag))
+
+
+def tag_of(raw: bytes | None, limit: int = MAX_TX_MESSAGE) -> int | None:
+    """The `tag` of a tx message when it can be read (even if the message is otherwise refused), else
+    None: what a refusal's status carries."""
+    if raw is None:
+        return None
+    try:
+        return _tag(_map(unpack(raw, limit), "a tx message"))
+    except CodecError:
+        return None
 
 
 # -- rx: modem -> app ---------------------------------------------------------------------------

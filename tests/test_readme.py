@@ -1,0 +1,172 @@
+"""README.md's commands, in order, as written (run from the repository root), on fresh ports: each one
+does what the README says and prints what it should (issue #20).
+
+The only change to a command is the port: `uwsimnet run` gets `--listen tcp/127.0.0.1:<free port>` and
+`gli` gets `-e` for it, as the README says to do when 7447 is taken (the test must not depend on 7447
+being free).  Commands ending in `&` run in the background, as in a shell."""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import signal
+import socket
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+pytest.importorskip("uwsimnet_gli")
+
+
+def section(title: str) -> str:
+    start = README.index(f"## {title}")
+    end = README.find("\n## ", start + 1)
+    return README[start:end if end > 0 else None]
+
+
+def commands(text: str) -> list[tuple[list[str], bool]]:
+    """(argv, background) of every line of the sh blocks of `text`, comments removed."""
+    out = []
+    for block in re.findall(r"```sh\n(.*?)```", text, re.S):
+        block = re.sub(r"\\\n\s*", " ", re.sub(r"\s{2,}#[^\n]*\\\n", " \\\n", block))   # continuation lines
+        for line in block.splitlines():
+            line = re.split(r"\s{2,}#|^#", line)[0].strip()
+            if not line:
+                continue
+            bg = line.endswith("&")
+            out.append((shlex.split(line.rstrip("&")), bg))
+    return out
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Bg:
+    """A background command whose output is collected by threads."""
+
+    def __init__(self, argv: list[str]) -> None:
+        self.p = subprocess.Popen(argv, cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        self.out: list[str] = []
+        self.err: list[str] = []
+        for fh, dst in ((self.p.stdout, self.out), (self.p.stderr, self.err)):
+            threading.Thread(target=lambda fh=fh, dst=dst: dst.extend(iter(fh.readline, "")), daemon=True).start()
+
+    def text(self) -> str:
+        return "".join(self.out) + "\n--- stderr ---\n" + "".join(self.err)
+
+    def wait_for(self, pattern: str, timeout: float, stream: str = "out") -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            m = re.search(pattern, "".join(self.out if stream == "out" else self.err), re.M)
+            if m:
+                return m.group(0)
+            if self.p.poll() is not None:
+                time.sleep(0.2)
+                if re.search(pattern, "".join(self.out if stream == "out" else self.err), re.M):
+                    continue
+                break
+            time.sleep(0.05)
+        raise AssertionError(f"{self.p.args}: no {pattern!r} within {timeout} s\n{self.text()}")
+
+    def stop(self) -> int:
+        if self.p.poll() is None:
+            self.p.send_signal(signal.SIGINT)
+            try:
+                self.p.wait(30)
+            except subprocess.TimeoutExpired:
+                self.p.kill()
+                self.p.wait(5)
+        time.sleep(0.1)
+        return self.p.returncode
+
+
+def run(argv: list[str], timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+def test_readme_commands_block(tmp_path):
+    cmds = commands(section("Commands"))
+    assert [argv[1] for argv, _ in cmds][:4] == ["validate", "run", "report", "plot"]
+    cmds = cmds[:4]                 # (then `uwsimnet sweep`: a 20-run campaign, tested in its own file)
+    outs = []
+    for argv, bg in cmds:
+        assert not bg and Path(ROOT / argv[0]).exists(), argv
+        r = run(argv)
+        assert r.returncode == 0, (argv, r.stdout, r.stderr)
+        assert "Traceback" not in r.stderr
+        outs.append(r.stdout)
+    assert outs[0].startswith("scenes/paper/phy-layer-rf.xml: ok (")
+    assert "rov0-to-rov1" in outs[1] and "trace: out/rf.jsonl" in outs[1]
+    assert "rov0-to-rov1" in outs[2] and "thr B/s" in outs[2]
+    figs = [ln for ln in outs[3].splitlines() if ln.endswith(".png")]
+    assert figs and all((ROOT / f).is_file() for f in figs)
+
+
+def test_readme_real_time_block_in_order_on_fresh_ports():
+    cmds = commands(section("Real time, your own apps, real modems"))
+    names = [" ".join(a[:2]) if "gli" not in a[0] else f"gli {a[a.index('acoustic-apps') + 1]}" for a, _ in cmds]
+    assert names == [".venv/bin/python examples/acoustic_demo.py", ".venv/bin/uwsimnet run", "gli pose",
+                     "gli listen", "gli send"], names
+    demo, sim, pose, listen, send = (a for a, _ in cmds)
+    assert [bg for _, bg in cmds] == [False, False, False, True, False]
+
+    # 1. the demo, on a port of its own
+    r = run(demo, timeout=120)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
+    assert re.search(r"^\[demo\] simulator on tcp/127\.0\.0\.1:\d+; starting the apps$", r.stdout, re.M)
+    assert re.search(r"^\[pong\] pong_app: got 'ping \d+' from 1, one-way delay", r.stdout, re.M)
+    assert re.search(r"^\[ping\] ping_app: 'pong \d+' from 2, round trip", r.stdout, re.M)
+    assert "[demo] exit codes {'uwsimnet': 0, 'pong': 0, 'ping': 0}; trace out/acoustic-apps.jsonl" in r.stdout
+
+    # 2. the simulator by hand (terminal 1), on a fresh port
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    s = Bg([*sim, "--listen", ep])
+    try:
+        s.wait_for(r"^uwsimnet: running for 600 s \(realtime clock\)", 30)      # the scene's duration
+        assert f"uwsimnet: listening on {ep}" in s.text()
+
+        def gli(argv: list[str]) -> list[str]:
+            return [argv[0], "-e", ep, *argv[1:]]
+        p = run(gli(pose), timeout=60)                                      # 3. bravo placed from outside
+        assert p.returncode == 0 and p.stdout.startswith("Putting pose (100.0, 0.0, -10.0)"), p.stdout + p.stderr
+        li = Bg(gli(listen))                                               # 4. in the background
+        li.wait_for(r"^Press CTRL-C to quit", 30, stream="err")
+        time.sleep(0.5)                                                    # subscribed at the router
+        sd = run(gli(send), timeout=60)                                    # 5. from the shell
+        assert sd.returncode == 0, sd.stdout + sd.stderr
+        assert re.search(r"^Sending to 2 \(tag \d+, 5 B\): 'hello'$", sd.stdout, re.M), sd.stdout
+        assert re.search(r"^  sent at t=\d+\.\d{6}$", sd.stdout, re.M), sd.stdout
+        li.p.wait(30)                                                      # --count 1: it ends by itself
+        assert li.p.returncode == 0, li.text()
+        assert re.search(r"^>> \[rx\] bravo-modem <- 1 \(dst 2, seq \d+\) t_tx=\S+ t_rx=\S+: 'hello'$",
+                         "".join(li.out), re.M), li.text()
+    finally:
+        rc = s.stop()
+    assert rc == 0, s.text()
+    out = s.text()
+    assert "uwsimnet: stopping (signal 2)" in out and "alpha-modem" in out.split("stopping", 1)[1]
+    assert "Traceback" not in out
+
+
+def test_readme_says_what_to_do_when_7447_is_taken():
+    """The README's advice holds: on a taken port `uwsimnet run` names it in one line and exits 2."""
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        r = run([".venv/bin/uwsimnet", "run", "scenes/examples/acoustic-apps.xml", "--clock", "realtime",
+                 "--listen", f"tcp/127.0.0.1:{port}"], timeout=60)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"cannot listen on tcp/127.0.0.1:{port}" in r.stderr and "--listen another endpoint" in r.stderr
+    assert "one line and exits 2" in section("Real time, your own apps, real modems")
