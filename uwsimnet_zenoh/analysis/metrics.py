@@ -319,9 +319,10 @@ class Accumulator:
         ev = rec["ev"]
         if ev not in EVENTS:
             return
+        reason, flow, kind = rec.get("reason"), rec.get("flow"), rec.get("kind", "data")
         self.event(rec["t"], ev, rec["ch"], rec["dev"], rec["src"], rec.get("dst"), rec["seq"], rec["size"],
-                   rec.get("flow"), rec.get("kind", "data"), rec.get("reason"), "dist" in rec,
-                   bool(rec.get("implicit")))
+                   flow if isinstance(flow, str) else None, kind if isinstance(kind, str) else "data",
+                   reason if isinstance(reason, str) else None, "dist" in rec, bool(rec.get("implicit")))
 
     def on_event(self, t: float, ev: str, ch: int, dev: str, frame: Any, reason: str | None,
                  fifo: int | None, dist: float | None, implicit: bool = False) -> None:

@@ -80,8 +80,27 @@ def record(t: float, ev: str, ch: int, dev: str, frame: Frame, reason: str | Non
     return rec
 
 
-_dumps = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False).encode
-"""The reference encoding of a record: compact, key order kept, floats as Python's repr."""
+_encode = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False, allow_nan=False).encode
+
+
+def finite(v: Any) -> Any:
+    """`v` with every non-finite float replaced by None (docs/trace-format.md: null)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: finite(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [finite(x) for x in v]
+    return v
+
+
+def _dumps(rec: Any) -> str:
+    """The reference encoding of a record: compact, key order kept, floats as Python's repr; a NaN or an
+    infinity anywhere is written as null (valid JSON)."""
+    try:
+        return _encode(rec)
+    except ValueError:
+        return _encode(finite(rec))
 
 
 class _Line(msgspec.Struct, omit_defaults=True):
