@@ -281,6 +281,23 @@ def until(f: Callable[[], Any], what: str, timeout: float = WAIT) -> Any:
         time.sleep(0.3)
 
 
+def heard(listener: Proc, send: Callable[[], subprocess.CompletedProcess[str]]) -> subprocess.CompletedProcess[str]:
+    """Send until the listener (`listen --count 1`) has heard the frame and exited 0; the last send's result.
+
+    "Press CTRL-C" says the listener declared its subscriber, not that the declaration reached the broker's
+    router two hops away: a frame delivered before that is routed nowhere, so the sender tries again (each
+    try is a whole frame through the channel, several seconds apart) instead of sleeping a guessed second."""
+    deadline = time.monotonic() + 3 * WAIT
+    while True:
+        r = send()
+        try:
+            assert listener.proc.wait(5.0) == 0, listener.output()
+            return r
+        except subprocess.TimeoutExpired:
+            if time.monotonic() > deadline:
+                raise AssertionError(f"listener heard nothing within {3 * WAIT} s: {listener.output()}") from None
+
+
 def parallel(*calls: Callable[[], Any]) -> list[Any]:
     """Independent commands at once (each is a process): the matrix's wall time stays small."""
     out: list[Any] = [None] * len(calls)
@@ -311,11 +328,15 @@ def test_lab_matrix(lab: Lab) -> None:
     # -- broker (h1), kinematic vehicles (app-b, h3), poses (app-a) ---------------------------------------
     lab.start("brk", ["run", str(lab.root / "scene.xml"), "--duration", "600", "--trace",
                       str(lab.root / "trace.jsonl")], "uwsimnet: running")
-    parallel(lambda: lab.start("app-b", ["vehicles", "--vehicle", "vb=10,0,0", "--max-speed", "5"],
-                               "vehicles ready in lab: vb"),
-             lambda: ok(lab.gli("app-a", "pose", "va", "0", "0", "0")))
+    lab.start("app-b", ["vehicles", "--vehicle", "vb=10,0,0", "--max-speed", "5"], "vehicles ready in lab: vb")
+
+    def posed_va() -> bool:
+        # a pose is a stream (a vehicle publishes its own at its rate): one put made before the broker's
+        # subscription reached app-a's router is not routed anywhere, so app-a puts it again until it lands
+        ok(lab.gli("app-a", "pose", "va", "0", "0", "0"))
+        return info(lab, "app-a", "a").get("position") == [0.0, 0.0, 0.0]
     # poses reach the broker (its pose/** subscriber): va where app-a put it, vb where `uwsimnet vehicles` is
-    parallel(lambda: until(lambda: info(lab, "app-a", "a").get("position") == [0.0, 0.0, 0.0], "app-a's pose of va"),
+    parallel(lambda: until(posed_va, "app-a's pose of va"),
              lambda: until(lambda: info(lab, "app-b", "b").get("position") == [10.0, 0.0, 0.0],
                            "vb's pose from uwsimnet vehicles"))
     assert info(lab, "app-b", "b")["kind"] == "sim"
@@ -326,11 +347,10 @@ def test_lab_matrix(lab: Lab) -> None:
         lambda: lab.start("app-b", ["listen", "b", "--count", "1", "--timeout", str(WAIT), "--json"],
                           "Press CTRL-C", gli=True),
         lambda: lab.start("vis", ["trace", "--count", "1", "--timeout", str(WAIT)], "Declaring Subscriber", gli=True))
-    time.sleep(1.0)                                       # the subscriptions reach the broker's router
-    sent = lab.gli("app-a", "send", "a", str(ADDRESS["b"]), "hello-b", "--wait", "--timeout", "10")
+    sent = heard(listen_b, lambda: lab.gli("app-a", "send", "a", str(ADDRESS["b"]), "hello-b", "--wait",
+                                           "--timeout", "10"))
     ok(sent, "(sim)")
     assert "  sent at" in sent.stdout or "  acked at" in sent.stdout, sent.stdout
-    assert listen_b.proc.wait(WAIT) == 0, listen_b.output()
     frame = json.loads(listen_b.wait_for('"modem": "b"'))
     assert frame["text"] == "hello-b" and frame["src"] == ADDRESS["a"]
     assert trace.proc.wait(WAIT) == 0, trace.output()
@@ -385,10 +405,9 @@ def test_lab_matrix(lab: Lab) -> None:
         lambda: until(lambda: info(lab, "app-b", "y").get("kind") == "real", "y served by its real driver"),
         lambda: lab.start("app-a", ["listen", "a", "--count", "1", "--timeout", str(WAIT), "--json"],
                           "Press CTRL-C", gli=True))
-    time.sleep(1.0)
     # app-b sends from y: its driver writes the frame to the radio (the emulated z), z transmits it to a
-    ok(lab.gli("app-b", "send", "y", str(ADDRESS["a"]), "via-real-y", "--wait", "--timeout", "10"), "(real)")
-    assert listen_a.proc.wait(WAIT) == 0, listen_a.output()
+    ok(heard(listen_a, lambda: lab.gli("app-b", "send", "y", str(ADDRESS["a"]), "via-real-y", "--wait",
+                                       "--timeout", "10")), "(real)")
     assert json.loads(listen_a.wait_for('"modem": "a"'))["text"] == "via-real-y"
 
     phase("driver")
@@ -398,10 +417,8 @@ def test_lab_matrix(lab: Lab) -> None:
                           "Press CTRL-C", gli=True),
         lambda: lab.start("app-a", ["bridge", "socket", "--id", "a"], "bridge socket ready"))
     port = int(bridge.wait_for("bridge socket ready").split("tcp 127.0.0.1:")[1].split()[0])
-    time.sleep(1.0)
-    r = lab.python(lab.host("app-a"), BRIDGE_CLIENT, str(port), str(ADDRESS["b"]))
+    r = heard(listen_b, lambda: lab.python(lab.host("app-a"), BRIDGE_CLIENT, str(port), str(ADDRESS["b"])))
     assert r.returncode == 0 and "sent" in r.stdout, r.stdout + r.stderr
-    assert listen_b.proc.wait(WAIT) == 0, listen_b.output()
     assert json.loads(listen_b.wait_for('"modem": "b"'))["text"] == "bridged"
     print(f"lab matrix: {time.monotonic() - t0:.1f} s")
 

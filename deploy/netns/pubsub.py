@@ -4,6 +4,10 @@
     python pubsub.py pub CONFIG KEY N [FILE]   wait until a subscriber matches (and FILE says "ready"),
                                               then put N samples
 
+A matching subscriber is not yet a route: the declaration may reach the publisher's router through a
+subscriber elsewhere before the one on the far host, so with FILE the publisher first puts "probe"
+samples until the subscriber says "probed" (its route is up end to end), then the N samples.
+
 CONFIG is a client configuration rendered by `uwsimnet deploy`.  Every wait is
 bounded (TIMEOUT, default 20 s, from the environment); the session is always closed.
 """
@@ -27,22 +31,31 @@ def sub(conf: zenoh.Config, key: str, n: int) -> int:
         _sub = s.declare_subscriber(key, lambda smp: q.put(smp.payload.to_string()))
         print("ready", flush=True)
         deadline = time.monotonic() + TIMEOUT
-        got = 0
+        got, probed = 0, False
         while got < n:
             try:
                 msg = q.get(timeout=max(0.0, deadline - time.monotonic()))
             except queue.Empty:
                 print(f"timeout: {got}/{n} samples", flush=True)
                 return 1
+            if msg == "probe":
+                if not probed:
+                    print("probed", flush=True)
+                    probed = True
+                continue
             print(f"got {msg}", flush=True)
             got += 1
     return 0
 
 
+def _says(path: str, word: str) -> bool:
+    return Path(path).exists() and word in Path(path).read_text().split()
+
+
 def pub(conf: zenoh.Config, key: str, n: int, ready_file: str | None) -> int:
     deadline = time.monotonic() + TIMEOUT
     if ready_file:
-        while "ready" not in (Path(ready_file).read_text() if Path(ready_file).exists() else ""):
+        while not _says(ready_file, "ready"):
             if time.monotonic() > deadline:
                 print(f"timeout: {ready_file} never said ready", file=sys.stderr)
                 return 1
@@ -54,6 +67,12 @@ def pub(conf: zenoh.Config, key: str, n: int, ready_file: str | None) -> int:
                 print("timeout: no subscriber matched", file=sys.stderr)
                 return 1
             time.sleep(0.05)
+        while ready_file and not _says(ready_file, "probed"):
+            if time.monotonic() > deadline:
+                print("timeout: the subscriber never heard a probe", file=sys.stderr)
+                return 1
+            p.put("probe")
+            time.sleep(0.1)
         for i in range(n):
             p.put(f"sample {i} from pid {os.getpid()}")
         time.sleep(1.0)  # let the samples cross three routers before the session closes (0.2 s lost them once)
