@@ -15,10 +15,14 @@ on the key space of docs/gli-protocol.md:
   leaves the channel and what it held ends `dropped` reason `swapped`, its tx is ignored); when the
   token goes the device is re-added from the scene and served again.
 
-Threading: Zenoh callbacks run on Zenoh's threads and only hand raw bytes to `clock.call_soon`; all
-decoding, simulation and publishing happens on the engine thread.  A bad message never stops the
-broker: it is answered on the modem's `status` with `dropped` and a reason, counted, and logged
-(rate-limited).
+Threading: Zenoh callbacks run on Zenoh's threads and only hand raw bytes on: a tx message to its
+modem's ingress `Lane` (bounded; the engine takes the lanes round-robin, so a flood on one modem does
+not delay the others), anything else to `clock.call_soon`.  Decoding and simulation happen on the
+engine thread, which never makes a Zenoh put: rx, status, trace, pose and clock messages leave through
+bounded `Outbox`es (bus/outbox.py), one publisher thread each (one per modem), so a consumer that
+cannot keep up loses messages at the edge, counted per modem (`info` "edge", the run summary), and
+never stalls the engine or another modem.  A bad message never stops the broker: it is answered on
+the modem's `status` with `dropped` and a reason, counted, and logged (rate-limited).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from uwsimnet_gli.wire import Keys, check_chunk, is_chunk, parse
 
 from ..kernel.realtime import Deferred
 from .control import Control
+from .outbox import INGRESS_WARN_S, LANE_CAPACITY, OUTBOX_CAPACITY, Lane, Outbox
 
 if TYPE_CHECKING:
     from ..engine.network import Network
@@ -81,14 +86,17 @@ class Throttle:
 
 
 class Endpoint:
-    """What the broker holds for one served modem."""
+    """What the broker holds for one served modem: its publishers, its outbox (rx and status leave
+    through it, in order) and its ingress lane (its tx messages wait there for the engine)."""
 
-    __slots__ = ("modem", "rx_pub", "status_pub", "token", "bad")
+    __slots__ = ("modem", "rx_pub", "status_pub", "token", "bad", "out", "lane")
 
-    def __init__(self, modem: Modem, rx_pub: Any, status_pub: Any) -> None:
+    def __init__(self, modem: Modem, rx_pub: Any, status_pub: Any, out: Outbox, lane: Lane) -> None:
         self.modem = modem
         self.rx_pub = rx_pub
         self.status_pub = status_pub
+        self.out = out
+        self.lane = lane
         self.token: Any = None
         self.bad: Counter[str] = Counter()      # messages refused before reaching the modem, by reason
 
@@ -97,7 +105,9 @@ class Broker:
     def __init__(self, session: zenoh.Session, net: Network, clock: RealtimeClock, *,
                  world: str | None = None, channels: Iterable[int] | None = None,
                  tx_limit: int = wire.MAX_TX_MESSAGE, publish_trace: bool = True,
-                 clock_rate_hz: float = 10.0, foreign: Iterable[str] = ()) -> None:
+                 clock_rate_hz: float = 10.0, foreign: Iterable[str] = (),
+                 outbox_capacity: int = OUTBOX_CAPACITY, lane_capacity: int = LANE_CAPACITY,
+                 ingress_warn_s: float = INGRESS_WARN_S) -> None:
         self.session = session
         self.net = net
         self.clock = clock
@@ -116,6 +126,18 @@ class Broker:
         """Modem ids of the scene served by other brokers (their channels are not ours): ignored here."""
         self.counters: Counter[str] = Counter()
         self.warn = Throttle()
+        self.outbox_capacity = outbox_capacity
+        self.lane_capacity = lane_capacity
+        self.ingress_warn_s = ingress_warn_s
+        self.lanes: dict[str, Lane] = {}
+        """Ingress lanes by modem id (kept after a modem leaves: its counts stay in the summary)."""
+        self.outboxes: dict[str, Outbox] = {}
+        """Outboxes by modem id, plus `*trace` and `*misc` (poses, clock, answers to unknown ids)."""
+        self._other_lane = Lane("*", lane_capacity)         # tx for ids we do not serve (refused there)
+        self._misc = self._outbox("*misc", outbox_capacity)
+        self._trace_out: Outbox | None = None
+        self._leaving: dict[Modem, Outbox] = {}
+        """Simulated modems handed to a real driver: what they still say goes out here (HIL swap)."""
         self._entities: list[Any] = []
         self._trace_pubs: dict[int, Any] = {}
         self._trace_buf: Deferred | None = None
@@ -147,6 +169,7 @@ class Broker:
         if self.publish_trace:
             for ch in net.channels:
                 self._trace_pubs[ch] = s.declare_publisher(k.trace(ch))
+            self._trace_out = self._outbox("*trace", 16 * self.outbox_capacity)   # every record of the channels
             self._trace_buf = Deferred(self._trace_sink)
             net.tracer.add(self._trace_buf)
             self.clock.idle_hooks.append(self._trace_buf.flush)
@@ -172,8 +195,12 @@ class Broker:
         if self._trace_buf is not None:
             with contextlib.suppress(Exception):
                 self._trace_buf.flush()
-        for e in self._entities:
+        for e in self._entities:            # no more input
             self._undeclare(e)
+        self._entities.clear()
+        deadline = time.monotonic() + 2.0   # what is queued goes out (a stuck consumer does not hold us)
+        for out in self.outboxes.values():
+            out.close(max(0.05, deadline - time.monotonic()))
         for ep in self.endpoints.values():
             for e in (ep.token, ep.rx_pub, ep.status_pub):
                 self._undeclare(e)
@@ -192,10 +219,20 @@ class Broker:
     def serves(self, channel: int) -> bool:
         return self.channels is None or channel in self.channels
 
+    def _outbox(self, name: str, capacity: int) -> Outbox:
+        out = self.outboxes.get(name)
+        if out is None or out._closing:
+            out = self.outboxes[name] = Outbox(name, capacity)
+        return out
+
     def attach(self, m: Modem) -> Endpoint:
         k, s = self.keys, self.session
+        lane = self.lanes.get(m.id)
+        if lane is None:
+            lane = self.lanes[m.id] = Lane(m.id, self.lane_capacity)
         ep = Endpoint(m, s.declare_publisher(k.rx(m.id), congestion_control=BLOCK, express=True),
-                      s.declare_publisher(k.status(m.id), congestion_control=BLOCK, express=True))
+                      s.declare_publisher(k.status(m.id), congestion_control=BLOCK, express=True),
+                      self._outbox(m.id, self.outbox_capacity), lane)
         self.endpoints[m.id] = ep
         self.foreign.discard(m.id)
         if m.id not in self.real:
@@ -208,8 +245,10 @@ class Broker:
         ep = self.endpoints.pop(dev, None)
         if ep is None:
             return
-        for e in (ep.token, ep.rx_pub, ep.status_pub):
-            self._undeclare(e)
+        self._undeclare(ep.token)
+        ep.token = None
+        for e in (ep.rx_pub, ep.status_pub):        # after what is queued for them
+            ep.out.put(self._undeclare, e, "undeclare")
 
     def serving(self, dev: str) -> Endpoint | None:
         """The endpoint if this broker serves `dev` right now (not handed to a real driver)."""
@@ -219,11 +258,58 @@ class Broker:
 
     # -- Zenoh callbacks: enqueue only -----------------------------------------------------------
     def _on_tx_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
         pl = sample.payload
-        if len(pl) > self.tx_limit:                      # do not copy what we will refuse anyway
-            self.clock.call_soon(self._handle_tx, str(sample.key_expr), None, len(pl))
-        else:
-            self.clock.call_soon(self._handle_tx, str(sample.key_expr), pl.to_bytes(), 0)
+        size = len(pl)
+        raw = None if size > self.tx_limit else pl.to_bytes()     # do not copy what we will refuse anyway
+        k = parse(key)
+        dev = k.name if k is not None else None
+        lane = self.lanes.get(dev) if dev is not None and dev in self.endpoints else None
+        if lane is None:
+            lane = self._other_lane
+        item = (self.clock.now(), key, raw, size)
+        r = lane.offer(item)
+        if r:
+            self.clock.call_soon(self._drain_lane, lane)
+        elif r is None:
+            self._lane_full(lane, dev, raw)
+
+    def _lane_full(self, lane: Lane, dev: str | None, raw: bytes | None) -> None:
+        """(Zenoh thread) A modem's ingress lane is full: the message is refused like a full FIFO
+        (status `dropped`, reason `fifo`), counted, never traced (the modem never saw it)."""
+        self.counters["ingress_fifo"] += 1
+        ep = self.endpoints.get(dev) if dev is not None else None
+        if ep is None:
+            return
+        tag = None
+        if raw is not None:
+            with contextlib.suppress(wire.CodecError):
+                tag = wire.decode_tx(raw, self.tx_limit).tag
+        ep.out.put(ep.status_pub.put, wire.encode_status(tag, "dropped", "fifo", self.clock.now()), "status")
+        self.warn(f"ingress:{dev}", "%s: tx dropped (fifo): its ingress lane is full (%d messages waiting for"
+                  " the engine)", dev, len(lane))
+
+    def _drain_lane(self, lane: Lane) -> None:
+        """(engine) One tx message of one modem, then back in line behind the other modems."""
+        got = lane.take()
+        if got is None:
+            return
+        delay, (stamp, key, raw, size) = got
+        sched = self.net.sched
+        if stamp > sched.now:           # arrived after this turn was queued: not before its time
+            nt = sched.next_time()
+            if nt is None or nt >= stamp:
+                sched.now = stamp
+        if delay > self.ingress_warn_s:
+            self.counters["ingress_late"] += 1
+            self.warn(f"ingress_late:{lane.name}", "%s: ingress delay %.1f ms (put to engine) is over %.0f ms:"
+                      " the engine cannot keep up with what arrives", lane.name, delay * 1e3,
+                      self.ingress_warn_s * 1e3)
+        try:
+            self._handle_tx(key, raw, size)
+        finally:
+            if lane.more():
+                self.clock.call_soon(self._drain_lane, lane)
 
     def _on_pose_sample(self, sample: zenoh.Sample) -> None:
         pl = sample.payload
@@ -249,15 +335,15 @@ class Broker:
             ep.bad[reason] += 1
         key = reason if ep is None else f"{reason}:{dev}"        # bounded: unknown ids share one key
         self.warn(key, "%s: tx dropped (%s): %s", dev, reason, detail)
-        pub = ep.status_pub if ep is not None else None
         payload = wire.encode_status(tag, "dropped", reason, self.net.sched.now)
-        try:
-            if pub is not None:
-                pub.put(payload)
-            else:
-                self.session.put(self.keys.status(dev), payload, congestion_control=BLOCK)
-        except Exception as e:  # noqa: BLE001 - answering is best effort
-            log.debug("status for %s not sent: %s", dev, e)
+        if ep is not None:
+            ep.out.put(ep.status_pub.put, payload, "status")
+        else:
+            self._misc.put(self._put_status(dev), payload, "status")
+
+    def _put_status(self, dev: str) -> Any:
+        key = self.keys.status(dev)
+        return lambda payload: self.session.put(key, payload, congestion_control=BLOCK)
 
     def _handle_tx(self, key: str, raw: bytes | None, size: int) -> None:
         k = parse(key)
@@ -295,27 +381,35 @@ class Broker:
         if ep is None:
             return
         data = frame.data if frame.data is not None else bytes(frame.payload)
-        ep.rx_pub.put(wire.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, m.rx_dist, frame.msg))
+        if not ep.out.put(ep.rx_pub.put, wire.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t,
+                                                        m.rx_dist, frame.msg), "rx"):
+            self._edge_drop(m.id, "rx")
 
     def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
         tag = frame.tag if isinstance(frame.tag, int) and not isinstance(frame.tag, bool) else None
-        if getattr(m, "hil_swapped", False):
+        leaving = self._leaving.get(m)
+        if leaving is not None:
             # a simulated modem handed to a real driver: what it still held ends here, said once
             if event == "dropped" and reason == "removed":
                 reason = "swapped"
-            with contextlib.suppress(Exception):
-                self.session.put(self.keys.status(m.id), wire.encode_status(tag, event, reason, t, frame.seq),
-                                 congestion_control=BLOCK)
+            leaving.put(self._put_status(m.id), wire.encode_status(tag, event, reason, t, frame.seq), "status")
             return
         ep = self.serving(m.id)
         if ep is None or ep.modem is not m:
             return
-        ep.status_pub.put(wire.encode_status(tag, event, reason, t, frame.seq))
+        if not ep.out.put(ep.status_pub.put, wire.encode_status(tag, event, reason, t, frame.seq), "status"):
+            self._edge_drop(m.id, "status")
+
+    def _edge_drop(self, dev: str, kind: str) -> None:
+        self.counters[f"edge_{kind}"] += 1
+        self.warn(f"edge:{dev}", "%s: %s message dropped at the edge: its consumer does not keep up (outbox"
+                  " of %d full)", dev, kind, self.outbox_capacity)
 
     def _trace_sink(self, rec: dict) -> None:
         pub = self._trace_pubs.get(rec["ch"])
-        if pub is not None:
-            pub.put(wire.pack(rec))
+        out = self._trace_out
+        if pub is not None and out is not None and not out.put(pub.put, wire.pack(rec), "trace"):
+            self.counters["edge_trace"] += 1
 
     def _handle_pose(self, key: str, raw: bytes | None) -> None:
         k = parse(key)
@@ -385,7 +479,7 @@ class Broker:
         if ep.token is not None:
             self._undeclare(ep.token)
             ep.token = None
-        m.hil_swapped = True                      # type: ignore[attr-defined]  (see _on_status)
+        self._leaving[m] = self._misc             # see _on_status
         while m.fifo:
             m.drop(m.fifo_pop(), "swapped")
         self.swapped[dev] = (m.vehicle, m.cfg)
@@ -395,6 +489,21 @@ class Broker:
         self.counters["swap_out"] += 1
         log.info("%s: a real driver took over; the simulated modem left the channel", dev)
 
+    def edge_summary(self) -> dict[str, Any]:
+        """Per modem: messages lost at the edge (outbox full, by kind; ingress lane full) and the ingress
+        delay (count, mean, max wall s); plus the trace and misc outboxes.  For the run summary."""
+        out: dict[str, Any] = {}
+        for dev, lane in self.lanes.items():
+            ob = self.outboxes.get(dev)
+            out[dev] = {"lost": dict(ob.dropped) if ob is not None else {}, "refused": lane.refused,
+                        "ingress_n": lane.n, "ingress_mean": lane.delay_sum / lane.n if lane.n else 0.0,
+                        "ingress_max": lane.delay_max}
+        for name in ("*trace", "*misc"):
+            ob = self.outboxes.get(name)
+            if ob is not None and ob.dropped:
+                out[name] = {"lost": dict(ob.dropped)}
+        return out
+
     # -- queries ---------------------------------------------------------------------------------
     def info(self, dev: str) -> dict[str, Any]:
         """The `info` reply of a served modem: configuration, kind and live state."""
@@ -403,8 +512,9 @@ class Broker:
         cfg = m.cfg
         known = bool(net.poses.known[m.vehicle_index])
         pos = net.poses.positions(net.sched.now)[m.vehicle_index] if known else None
+        ep = self.endpoints[dev]
         counters = dict(m.counters)
-        counters.update(self.endpoints[dev].bad)
+        counters.update(ep.bad)
         return {
             "id": m.id, "kind": "sim", "world": self.keys.world, "address": m.address, "vehicle": m.vehicle,
             "tx_channel": m.tx_channel.id, "rx_channel": m.rx_channel.id, "bitrate": m.bitrate,
@@ -417,6 +527,9 @@ class Broker:
             "phy_busy": m.phy_busy, "mac": cfg.mac.name, "pose_known": known,
             "position": None if pos is None else [float(x) for x in pos],
             "counters": counters, "config": cfg.model_dump(mode="json", exclude={"line"}),
+            # the edge (docs/runtime.md): messages lost because their consumer did not keep up, and the
+            # ingress delay (wall s from the tx put reaching the broker to the engine taking it)
+            "edge": ep.out.stats(), "ingress": ep.lane.stats(),
             "t": net.sched.now, "epoch": self.clock.wall_epoch(), "speed": self.clock.speed,
         }
 
@@ -492,7 +605,7 @@ class Broker:
                 for name in names:
                     pub = self._pose_pubs.get(name)
                     if pub is not None:
-                        pub.put(wire.encode_pose(pos[idx[name]], t=now))
+                        self._misc.put(pub.put, wire.encode_pose(pos[idx[name]], t=now), "pose")
         if self._clock_due:
             self._clock_due = False
             self.publish_clock()
@@ -504,7 +617,7 @@ class Broker:
 
     def publish_clock(self) -> None:
         if self._clock_pub is not None:
-            self._clock_pub.put(wire.pack(self.clock_sample()))
+            self._misc.put(self._clock_pub.put, wire.pack(self.clock_sample()), "clock")
 
     def _clock_tick(self) -> None:
         if self._clock_due:
