@@ -265,8 +265,9 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
     """Per-flow metrics and the conservation check in one pass over a trace (path or records).
 
     `horizon`: a transmitted frame with no outcome is in flight if its last tx is at or after
-    `end - horizon`, a violation otherwise.  `end`: end of the run (default: max of the meta duration
-    and the last event time).  `limit`: at most this many violation messages are kept (the count of all
+    `end - horizon`, a violation otherwise.  `end`: end of the run (default: the trace's `end` record
+    if it has one, a run stopped early or in realtime; else the max of the meta duration and the last
+    event time); rates are over that actual end too.  `limit`: at most this many violation messages are kept (the count of all
     is `conservation.total`).
     """
     meta, events = open_source(src, meta)
@@ -289,9 +290,12 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
             a = accs[name] = _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if is_int(dst) else None))
         return a
 
+    ended: float | None = None          # an `end` record: the run's actual end (stopped early, realtime)
     for rec in events:
         ev = rec["ev"]
         if ev not in EVENTS:
+            if ev == "end" and is_num(rec.get("t")) and math.isfinite(rec["t"]):
+                ended = float(rec["t"])
             continue
         t = rec["t"]
         if t > t_end:
@@ -362,13 +366,15 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
                 r[3] = reason
                 r[4] = fr.n_tx
 
+    if end is None and ended is not None:
+        end = max(ended, t_end)
     if end is None:
         dur = meta.get("duration")
         end = max(dur if is_num(dur) else -math.inf, t_end)
         if not math.isfinite(end):
             end = 0.0
     cons = _settle(frames, accs, devs, max_tx_seq, end, horizon, limit)
-    duration = meta.get("duration")
+    duration = meta.get("duration") if ended is None else ended
     flows = {name: _finish(a, mflows.get(name), duration if is_num(duration) else None)
              for name, a in accs.items()}
     return Analysis(meta=meta, flows=flows, conservation=cons)

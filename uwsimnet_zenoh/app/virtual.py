@@ -5,17 +5,20 @@ the tests (app/realtime.py is its realtime twin)."""
 
 from __future__ import annotations
 
+import signal
 import sys
+import traceback
 from pathlib import Path
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from ..analysis import flow_metrics, format_report, format_text
-from ..engine.network import Network
 from ..errors import UserError
+from ..kernel.scheduler import Interrupted
 from ..scene.load import SceneError, load_scene
-from ..trace.events import CallbackSink, JsonlSink, load_tracing_class
+from ..trace.events import JsonlSink
+from .checks import Interrupt, build_network, tracing_sink
 
 
 def _warn(msg: str) -> None:
@@ -55,22 +58,37 @@ def load_scene_file(path: str, verbose: bool = False):
 
 def run_virtual(scene, *, seed: int | None, duration: float | None, trace_path: Path,
                 progress: bool = True):
-    """Run a scene in virtual time, writing the JSONL trace; returns the Network."""
-    try:
-        net = Network(scene, seed=seed, duration=duration)
-    except ValueError as e:
-        raise UserError(f"{scene.source}: {e}") from None
-    if scene.tracing.class_name:
-        try:
-            net.tracer.add(CallbackSink(load_tracing_class(scene.tracing.class_name)))
-        except ValueError as e:
-            raise UserError(f"{scene.source}:{scene.tracing.line}: {e}") from None
+    """Run a scene in virtual time, writing the JSONL trace; returns the Network.
+
+    SIGINT/SIGTERM end the run between two events: frames without an outcome are dropped `stopped`,
+    the trace ends with an `end` record (reason `signal`) and is closed whole; `net.end` is that record.
+    An exception of the engine or a plug-in ends it the same way (reason `error`), then UserError."""
+    net = build_network(scene, seed=seed, duration=duration)
+    plugin = tracing_sink(scene)
+    if plugin is not None:
+        net.tracer.add(plugin)
     trace_path.parent.mkdir(parents=True, exist_ok=True)
+    failed: BaseException | None = None
     with open(trace_path, "w", encoding="utf-8") as fh:
         sink = JsonlSink(fh)
         sink.header(net.meta())
         net.tracer.add(sink)
-        _advance(net, net.duration, progress)
+        with Interrupt(net) as stop:
+            try:
+                _advance(net, net.duration, progress)
+            except Interrupted:
+                net.stop("stopped")
+                sink(net.end_record("signal", signal=signal.Signals(stop.signum or signal.SIGINT).name))
+            except Exception as e:  # noqa: BLE001 - a plug-in or engine error: said once, the trace ends true
+                failed = e
+                traceback.print_exc(file=sys.stderr)
+                try:
+                    net.stop("stopped")
+                finally:
+                    sink(net.end_record("error", error=f"{type(e).__name__}: {e}"))
+    if failed is not None:
+        raise UserError(f"{scene.source}: the run stopped at t={net.now:.6g} s: {type(failed).__name__}:"
+                        f" {failed} (traceback above; the trace ends there)")
     return net
 
 
@@ -97,6 +115,9 @@ def show_metrics(metrics) -> None:
 def print_summary(trace: str, net) -> None:
     """The per-flow table of a finished run, and one line on what was simulated."""
     show_metrics(flow_metrics(trace))
-    print(f"{net.scene.name}: {net.duration:g} s simulated, seed {net.seed}, {net.sched.events_run} events")
+    end = net.end
+    how = "" if end is None else f" (stopped by {end.get('signal', end['reason'])} of {net.duration:g} s)"
+    t = net.duration if end is None else end["t"]
+    print(f"{net.scene.name}: {t:g} s simulated{how}, seed {net.seed}, {net.sched.events_run} events")
 
 

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..app import ros2
+from ..app.checks import check, failed_plugin
 from ..app.virtual import load_scene_file, print_summary, run_virtual, show_metrics
 from ..errors import UserError, UwsimnetError
 from . import deploy, drivers, experiment, sweep, view
@@ -26,6 +27,7 @@ DEFAULT_VIEW_ROUTER = "tcp/127.0.0.1:7447"
 
 def cmd_validate(args: argparse.Namespace) -> int:
     scene = load_scene_file(args.scene, verbose=args.verbose)
+    check(scene)                        # the build step and the tracing plug-in, as a run makes them
     n_dev = len(scene.devices())
     print(f"{args.scene}: ok ({len(scene.channels)} channels, {len(scene.vehicles)} vehicles, {n_dev} devices,"
           f" {len(scene.flows)} flows)")
@@ -81,11 +83,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"trace: {trace}")
         if args.view:
             view.view_after_run(args, trace)
-        return 0
-    with tempfile.TemporaryDirectory() as tmp:     # the summary is computed from a trace all the same
-        path = Path(tmp) / "trace.jsonl"
-        net = run_virtual(scene, seed=args.seed, duration=args.duration, trace_path=path)
-        print_summary(str(path), net)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:     # the summary is computed from a trace all the same
+            path = Path(tmp) / "trace.jsonl"
+            net = run_virtual(scene, seed=args.seed, duration=args.duration, trace_path=path)
+            print_summary(str(path), net)
+    bad = failed_plugin(net)
+    if bad:
+        raise UserError(f"{scene.source}:{scene.tracing.line}: {bad}")
     return 0
 
 

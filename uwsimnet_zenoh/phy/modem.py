@@ -241,6 +241,7 @@ class Modem:
             cb(self, frame, now)
 
     def drop(self, frame: Frame, reason: str) -> None:
+        frame.final = reason
         self.counters["drop"] += 1
         self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason,
                          fifo=self.fifo_bytes)
