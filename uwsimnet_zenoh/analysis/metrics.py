@@ -267,8 +267,8 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
     `horizon`: a transmitted frame with no outcome is in flight if its last tx is at or after
     `end - horizon`, a violation otherwise.  `end`: end of the run (default: the trace's `end` record
     if it has one, a run stopped early or in realtime; else the max of the meta duration and the last
-    event time); rates are over that actual end too.  `limit`: at most this many violation messages are kept (the count of all
-    is `conservation.total`).
+    event time); rates are over that actual end too.  `limit`: at most this many violation messages are
+    kept (the count of all is `conservation.total`).
     """
     meta, events = open_source(src, meta)
     devs = DeviceMap(meta)
