@@ -117,6 +117,8 @@ class Network:
                 held[id(cur)] = (m, cur)
         for ev in self.sched.pending():
             for a in ev.args:
+                if not isinstance(a, Frame):
+                    a = getattr(a, "frame", None)       # the channel's Transmission (a reception pending)
                 if isinstance(a, Frame):
                     held.setdefault(id(a), (None, a))
         now = self.sched.now
