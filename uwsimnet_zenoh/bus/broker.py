@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import sys
 import time
 from collections import Counter
 from collections.abc import Iterable
@@ -49,6 +50,8 @@ if TYPE_CHECKING:
     from ..phy.modem import Modem
 
 log = logging.getLogger("uwsimnet.bus.broker")
+SWITCH_INTERVAL = 0.0005
+"""s: the interpreter's thread switch interval while a broker runs (see Broker.start)."""
 
 BLOCK = zenoh.CongestionControl.BLOCK
 """rx frames and status events wait for room rather than being dropped: both come at modem rates (small,
@@ -152,6 +155,11 @@ class Broker:
 
     # -- lifecycle (main thread, before the clock starts) ----------------------------------------
     def start(self) -> None:
+        # The engine thread shares the GIL with the outbox threads and Zenoh's callbacks; with Python's
+        # default 5 ms switch interval a busy outbox thread (a flood's statuses) could hold the engine
+        # several times 5 ms per frame.  0.5 ms bounds that wait (measured in tests/test_edge.py).
+        if sys.getswitchinterval() > SWITCH_INTERVAL:
+            sys.setswitchinterval(SWITCH_INTERVAL)
         net, k, s = self.net, self.keys, self.session
         for name in net.poses.names:
             check_chunk(name, "vehicle name")
