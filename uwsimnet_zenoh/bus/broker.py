@@ -41,6 +41,7 @@ from uwsimnet_gli.wire import Keys, check_chunk, is_chunk, parse
 
 from ..kernel.realtime import Deferred
 from .control import Control
+from .endpoint import BLOCK, ModemEndpoint
 from .outbox import INGRESS_WARN_S, LANE_CAPACITY, OUTBOX_CAPACITY, Lane, Outbox
 
 if TYPE_CHECKING:
@@ -52,13 +53,6 @@ if TYPE_CHECKING:
 log = logging.getLogger("uwsimnet.bus.broker")
 SWITCH_INTERVAL = 0.0005
 """s: the interpreter's thread switch interval while a broker runs (see Broker.start)."""
-
-BLOCK = zenoh.CongestionControl.BLOCK
-"""rx frames and status events wait for room rather than being dropped: both come at modem rates (small,
-rare), and with *drop* Zenoh gives up after `wait_before_drop` (1 ms) without a free batch, which a loaded
-machine hits: the app then missed frames the trace says it received (seen in the HIL formation run).
-*Block* waits at most `wait_before_close` (5 s) and then closes the transport to the stuck peer."""
-
 
 def _direct(fn: Any) -> Any:
     """Run `fn` on Zenoh's network thread instead of a Python thread of its own: one thread hop (and
@@ -88,17 +82,15 @@ class Throttle:
             self._hidden[key] += 1
 
 
-class Endpoint:
-    """What the broker holds for one served modem: its publishers, its outbox (rx and status leave
-    through it, in order) and its ingress lane (its tx messages wait there for the engine)."""
+class Endpoint(ModemEndpoint):
+    """What the broker holds for one served modem: its output keys and outbox (bus/endpoint.py, shared
+    with the driver host), its ingress lane (its tx messages wait there for the engine), its token."""
 
-    __slots__ = ("modem", "rx_pub", "status_pub", "token", "bad", "out", "lane")
+    __slots__ = ("modem", "token", "bad", "lane")
 
-    def __init__(self, modem: Modem, rx_pub: Any, status_pub: Any, out: Outbox, lane: Lane) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, modem: Modem, out: Outbox, lane: Lane) -> None:
+        super().__init__(session, keys, modem.id, out)
         self.modem = modem
-        self.rx_pub = rx_pub
-        self.status_pub = status_pub
-        self.out = out
         self.lane = lane
         self.token: Any = None
         self.bad: Counter[str] = Counter()      # messages refused before reaching the modem, by reason
@@ -238,9 +230,7 @@ class Broker:
         lane = self.lanes.get(m.id)
         if lane is None:
             lane = self.lanes[m.id] = Lane(m.id, self.lane_capacity)
-        ep = Endpoint(m, s.declare_publisher(k.rx(m.id), congestion_control=BLOCK, express=True),
-                      s.declare_publisher(k.status(m.id), congestion_control=BLOCK, express=True),
-                      self._outbox(m.id, self.outbox_capacity), lane)
+        ep = Endpoint(s, k, m, self._outbox(m.id, self.outbox_capacity), lane)
         self.endpoints[m.id] = ep
         self.foreign.discard(m.id)
         if m.id not in self.real:
@@ -255,8 +245,7 @@ class Broker:
             return
         self._undeclare(ep.token)
         ep.token = None
-        for e in (ep.rx_pub, ep.status_pub):        # after what is queued for them
-            ep.out.put(self._undeclare, e, "undeclare")
+        ep.undeclare_after_queued()
 
     def serving(self, dev: str) -> Endpoint | None:
         """The endpoint if this broker serves `dev` right now (not handed to a real driver)."""
@@ -293,7 +282,7 @@ class Broker:
         if raw is not None:
             with contextlib.suppress(wire.CodecError):
                 tag = wire.decode_tx(raw, self.tx_limit).tag
-        ep.out.put(ep.status_pub.put, wire.encode_status(tag, "dropped", "fifo", self.clock.now()), "status")
+        ep.status(tag, "dropped", "fifo", self.clock.now())
         self.warn(f"ingress:{dev}", "%s: tx dropped (fifo): its ingress lane is full (%d messages waiting for"
                   " the engine)", dev, len(lane))
 
@@ -343,11 +332,11 @@ class Broker:
             ep.bad[reason] += 1
         key = reason if ep is None else f"{reason}:{dev}"        # bounded: unknown ids share one key
         self.warn(key, "%s: tx dropped (%s): %s", dev, reason, detail)
-        payload = wire.encode_status(tag, "dropped", reason, self.net.sched.now)
         if ep is not None:
-            ep.out.put(ep.status_pub.put, payload, "status")
+            ep.status(tag, "dropped", reason, self.net.sched.now)
         else:
-            self._misc.put(self._put_status(dev), payload, "status")
+            self._misc.put(self._put_status(dev), wire.encode_status(tag, "dropped", reason, self.net.sched.now),
+                           "status")
 
     def _put_status(self, dev: str) -> Any:
         key = self.keys.status(dev)
@@ -389,8 +378,7 @@ class Broker:
         if ep is None:
             return
         data = frame.data if frame.data is not None else bytes(frame.payload)
-        if not ep.out.put(ep.rx_pub.put, wire.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t,
-                                                        m.rx_dist, frame.msg), "rx"):
+        if not ep.rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, m.rx_dist, frame.msg):
             self._edge_drop(m.id, "rx")
 
     def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
@@ -405,7 +393,7 @@ class Broker:
         ep = self.serving(m.id)
         if ep is None or ep.modem is not m:
             return
-        if not ep.out.put(ep.status_pub.put, wire.encode_status(tag, event, reason, t, frame.seq), "status"):
+        if not ep.status(tag, event, reason, t, frame.seq):
             self._edge_drop(m.id, "status")
 
     def _edge_drop(self, dev: str, kind: str) -> None:
