@@ -373,12 +373,12 @@ class Broker:
             self.warn(f"nopose:{dev}", "%s: tx dropped (nopose): vehicle %s has no pose yet", dev, m.vehicle)
         m.send(req.dst, len(req.data), data=req.data, flow=req.flow, tag=req.tag, refuse=refuse, msg=req.msg)
 
-    def _on_rx(self, m: Modem, frame: Frame, t: float) -> None:
+    def _on_rx(self, m: Modem, frame: Frame, t: float, dist: float) -> None:
         ep = self.serving(m.id)
         if ep is None:
             return
         data = frame.data if frame.data is not None else bytes(frame.payload)
-        if not ep.rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, m.rx_dist, frame.msg):
+        if not ep.rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, dist, frame.msg):
             self._edge_drop(m.id, "rx")
 
     def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
