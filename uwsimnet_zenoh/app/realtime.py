@@ -371,7 +371,7 @@ def _summary(trace: str, s: dict[str, Any], net: Any) -> None:
                                                                      if end.get("reason") == "error" else "")
     console.print(f"{net.scene.name}: {s['t']:.3f} s realtime{how}, {s['events']} events (late mean"
                   f" {s['late_mean'] * 1e6:.0f} us, max {s['late_max'] * 1e3:.2f} ms), {s['items']} messages,"
-                  f" {s['errors']} errors" + (f"; refused/ignored: {bad}" if bad else ""))
+                  f" {s['errors']} errors" + (f"; refused/ignored: {bad}" if bad else ""), soft_wrap=True)
     # the edge (docs/runtime.md): ingress delay per modem, messages lost because a consumer did not keep up
     edge = s.get("edge") or {}
     rows = [(dev, e) for dev, e in edge.items() if not dev.startswith("*") and e.get("ingress_n")]
@@ -382,10 +382,11 @@ def _summary(trace: str, s: dict[str, Any], net: Any) -> None:
         warn = s.get("ingress_warn", 0.05)
         flag = f" (over {warn * 1e3:.0f} ms: the engine did not keep up)" if worst[1]["ingress_max"] > warn else ""
         console.print(f"ingress delay (tx put to engine): {n} messages, mean {mean * 1e3:.2f} ms, max"
-                      f" {worst[1]['ingress_max'] * 1e3:.2f} ms at {worst[0]}{flag}", markup=False)
+                      f" {worst[1]['ingress_max'] * 1e3:.2f} ms at {worst[0]}{flag}", markup=False, soft_wrap=True)
     lost = {dev: e for dev, e in edge.items() if e.get("lost") or e.get("refused")}
     for dev, e in sorted(lost.items()):
         parts = [f"{n} {kind}" for kind, n in sorted((e.get("lost") or {}).items())]
         if e.get("refused"):
             parts.append(f"{e['refused']} tx refused (ingress lane full, status dropped fifo)")
-        console.print(f"lost at the edge: {dev}: {', '.join(parts)} (a consumer did not keep up)", markup=False)
+        console.print(f"lost at the edge: {dev}: {', '.join(parts)} (a consumer did not keep up)", markup=False,
+                      soft_wrap=True)
