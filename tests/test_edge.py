@@ -267,3 +267,18 @@ def test_runtime_add_device_is_validated_like_a_scene_device(rig):
         assert not r["ok"] and needle in r["error"], r
         assert "new" not in net.modems
     assert add()["ok"] and "new" in net.modems
+
+
+def test_hil_swap_state_machine():
+    from uwsimnet_zenoh.bus.hil import NOTHING, RETOKEN, SWAP_IN, SWAP_OUT, HilSwap
+
+    h = HilSwap()
+    assert h.driver_up("m", served=True) == SWAP_OUT
+    h.swapped_out("m", "v", "cfg")
+    assert h.driver_up("m", served=False) == NOTHING           # the same token seen twice
+    assert h.real == {"m"} and h.held == {"m": ("v", "cfg")}
+    assert h.driver_down("m", in_network=False) == (SWAP_IN, ("v", "cfg"))
+    assert h.real == set() and h.held == {}
+    assert h.driver_down("m", in_network=True) == (NOTHING, None)  # not real any more
+    assert h.driver_up("x", served=False) == NOTHING             # a driver for an id we do not serve (yet)
+    assert h.driver_down("x", in_network=True) == (RETOKEN, None)

@@ -42,6 +42,7 @@ from uwsimnet_gli.wire import Keys, check_chunk, is_chunk, parse
 from ..kernel.realtime import Deferred
 from .control import Control
 from .endpoint import BLOCK, ModemEndpoint
+from .hil import RETOKEN, SWAP_IN, SWAP_OUT, HilSwap
 from .outbox import INGRESS_WARN_S, LANE_CAPACITY, OUTBOX_CAPACITY, Lane, Outbox
 
 if TYPE_CHECKING:
@@ -113,10 +114,8 @@ class Broker:
         self.publish_trace = publish_trace
         self.clock_rate_hz = clock_rate_hz
         self.endpoints: dict[str, Endpoint] = {}
-        self.real: set[str] = set()
-        """Modem ids for which a real driver holds `driver/real`."""
-        self.swapped: dict[str, tuple[str, Any]] = {}
-        """Modems handed to a real driver: (vehicle, device config) to put them back when it leaves."""
+        self.hil = HilSwap()
+        """Who serves each id, the simulator or a real driver (bus/hil.py); `real`, `swapped` are its sets."""
         self.foreign: set[str] = set(foreign)
         """Modem ids of the scene served by other brokers (their channels are not ours): ignored here."""
         self.counters: Counter[str] = Counter()
@@ -144,6 +143,16 @@ class Broker:
         self._started = False
         self._closed = False
         self.control = Control(self)
+
+    @property
+    def real(self) -> set[str]:
+        """Modem ids for which a real driver holds `driver/real`."""
+        return self.hil.real
+
+    @property
+    def swapped(self) -> dict[str, tuple[str, Any]]:
+        """Modems handed to a real driver: (vehicle, device config) to put them back when it leaves."""
+        return self.hil.held
 
     # -- lifecycle (main thread, before the clock starts) ----------------------------------------
     def start(self) -> None:
@@ -443,29 +452,23 @@ class Broker:
             return
         dev = k.name
         if present:
-            if dev in self.real:
-                return
             ep = self.endpoints.get(dev)
-            if ep is not None:
+            if self.hil.driver_up(dev, served=ep is not None) == SWAP_OUT:
                 self._swap_out(dev, ep)
-            self.real.add(dev)
-        else:
-            if dev not in self.real:
+            return
+        action, held = self.hil.driver_down(dev, in_network=dev in self.net.modems)
+        if action == SWAP_IN:
+            vehicle, cfg = held
+            try:
+                m = self.net.add_device(vehicle, cfg)
+            except ValueError as e:
+                log.warning("%s: the real driver left but the simulated modem cannot come back: %s", dev, e)
                 return
-            self.real.discard(dev)
-            held = self.swapped.pop(dev, None)
-            if held is not None and dev not in self.net.modems:
-                vehicle, cfg = held
-                try:
-                    m = self.net.add_device(vehicle, cfg)
-                except ValueError as e:
-                    log.warning("%s: the real driver left but the simulated modem cannot come back: %s", dev, e)
-                    return
-                self.attach(m)
-                self.counters["swap_in"] += 1
-                log.info("%s: the real driver left; the simulated modem serves it again", dev)
-            elif dev in self.endpoints and self.endpoints[dev].token is None:
-                self.endpoints[dev].token = self.session.liveliness().declare_token(self.keys.driver(dev, "sim"))
+            self.attach(m)
+            self.counters["swap_in"] += 1
+            log.info("%s: the real driver left; the simulated modem serves it again", dev)
+        elif action == RETOKEN and dev in self.endpoints and self.endpoints[dev].token is None:
+            self.endpoints[dev].token = self.session.liveliness().declare_token(self.keys.driver(dev, "sim"))
 
     def _swap_out(self, dev: str, ep: Endpoint) -> None:
         """A real driver takes `dev` (HIL swap): the simulated modem leaves the channel, so simulated
@@ -478,7 +481,7 @@ class Broker:
         self._leaving[m] = self._misc             # see _on_status
         while m.fifo:
             m.drop(m.fifo_pop(), "swapped")
-        self.swapped[dev] = (m.vehicle, m.cfg)
+        self.hil.swapped_out(dev, m.vehicle, m.cfg)
         with contextlib.suppress(ValueError):
             self.net.remove_device(dev)
         self.detach(dev)
