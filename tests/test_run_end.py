@@ -9,6 +9,7 @@ the run to be under way by what it wrote, not by a sleep tuned to this machine."
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -94,9 +95,10 @@ def test_virtual_run_stopped_by_a_signal_ends_true_20_times(tmp_path):
         assert "flow" in out.splitlines()[0]                        # the per-flow table came first
         m = flow_metrics(str(trace))
         assert m["ab"].enqueued > 0 and m["ab"].delivered > 0
-        # report's rates are over the actual end: ab offers 100 B every 0.5 s = 200 B/s (over the planned
-        # 1e6 s it would read ~0.2 B/s)
-        assert m["ab"].offered == pytest.approx(200, rel=0.05)
+        # report's rates are over the actual end: ab offers 100 B every 0.5 s from t=0, so over [0, end]
+        # it offered 100 B x (floor(end / 0.5) + 1) (over the planned 1e6 s it would read ~0.2 B/s)
+        assert m["ab"].window == (0.0, end["t"])
+        assert m["ab"].offered == pytest.approx(100 * (math.floor(end["t"] / 0.5 + 1e-9) + 1) / end["t"])
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])

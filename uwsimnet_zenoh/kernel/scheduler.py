@@ -31,7 +31,24 @@ class Interrupted(Exception):  # noqa: N818 - it is what happened, not an error
     """Raised out of `Scheduler.run` when `interrupt()` was called: between two events, never inside one."""
 
 
-def _interrupt() -> None:
+class _Interrupt(Event):
+    """The event `interrupt()` pushes: reading its `cancelled` (the first thing `run` does with an event it
+    pops, before touching `now`) raises Interrupted, so an interrupt costs the other events nothing and
+    time never goes back, even when the signal came between a pop and the event's `now`."""
+
+    __slots__ = ()
+
+    def __init__(self, t: float) -> None:
+        self.t = t
+        self.fn = _never
+        self.args = ()
+
+    @property  # type: ignore[override]
+    def cancelled(self) -> bool:
+        raise Interrupted
+
+
+def _never() -> None:
     raise Interrupted
 
 
@@ -73,7 +90,7 @@ class Scheduler:
     def interrupt(self) -> None:
         """Make `run` raise `Interrupted` before the next event (safe from a signal handler: one heap
         push, ordered before every event due at `now`, with a sequence number no `at` uses)."""
-        heapq.heappush(self._heap, (self.now, -1, Event(self.now, _interrupt, ())))
+        heapq.heappush(self._heap, (self.now, -1, _Interrupt(self.now)))
 
     def run(self, until: float) -> None:
         """Virtual time: run every event with t <= until, then stand at `until` (see `interrupt`)."""
@@ -89,7 +106,7 @@ class Scheduler:
                 n += 1
                 ev.fn(*ev.args)
         except Interrupted:
-            self.events_run += n - 1
+            self.events_run += n
             raise
         self.events_run += n
         self.now = max(self.now, until)
@@ -100,4 +117,4 @@ class Scheduler:
 
     def pending(self) -> list[Event]:
         """The live events still scheduled, in no particular order (for ending a run: what is held)."""
-        return [ev for _, _, ev in self._heap if not ev.cancelled]
+        return [ev for _, _, ev in self._heap if not isinstance(ev, _Interrupt) and not ev.cancelled]
