@@ -182,7 +182,7 @@ def test_a_network_in_realtime_delivers_after_the_modelled_delay(clock):
                 vehicle("b", (150, 0, 0), device("b-m", 2, bitrate=10_000))], duration=5)
     net = Network(sc, flows=False)
     got = []
-    net.modems["b-m"].on_receive.append(lambda m, f, t: got.append((f.t_enq, t, time.perf_counter())))
+    net.modems["b-m"].on_receive.append(lambda m, f, t, d: got.append((f.t_enq, t, time.perf_counter())))
     c = clock(net.sched)
     c.start()
     sent = []

@@ -457,7 +457,7 @@ def test_warnings_above_an_error_are_still_reported() -> None:
 
 # ------------------------------------------------------------------------------------- bad scenes
 
-FLOW = "<flow><src>a-dev</src><dst>1</dst><size>8</size>{}</flow>"
+FLOW = "<flow><src>a-dev</src><dst>2</dst><size>8</size>{}</flow>"
 XXE = """\
 <?xml version="1.0"?>
 <!DOCTYPE UWSimScene [ <!ENTITY xxe SYSTEM "file:///etc/passwd"> ]>
@@ -556,7 +556,7 @@ BAD: list[tuple[str, str, str]] = [
     ("flow-arrival", _scene(dev=NO_LOSS, top=FLOW.format("<interval>1</interval><arrival>burst</arrival>")),
      "14: arrival: expected periodic or poisson, got 'burst'"),
     ("flow-dst-range",
-     _scene(dev=NO_LOSS, top=FLOW.format("<interval>1</interval>").replace("<dst>1", "<dst>-1")),
+     _scene(dev=NO_LOSS, top=FLOW.format("<interval>1</interval>").replace("<dst>2", "<dst>-1")),
      "14: dst: must be at least 0, got -1"),
     ("duplicate-flow-name",
      _scene(dev=NO_LOSS, top=2 * FLOW.format("<name>f</name><interval>1</interval>")),

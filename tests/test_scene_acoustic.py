@@ -239,7 +239,7 @@ def test_end_to_end_delay_uses_the_sound_speed() -> None:
     scene, _ = _load(text)
     net = Network(scene)
     got = []
-    net.modems["b-dev"].on_receive.append(lambda m, f, t: got.append(t))
+    net.modems["b-dev"].on_receive.append(lambda m, f, t, d: got.append(t))
     net.sched.at(1.0, lambda: net.modems["a-dev"].send(2, 139))
     net.run(10.0)
     assert got == [pytest.approx(1.0 + 740 / 1480 + 139 * 8 / 13900, abs=1e-9)]

@@ -312,12 +312,15 @@ class Accumulator:
         self._chan_bytes: dict[Any, int] = {}
         self._chan_ctrl: dict[Any, int] = {}
         self.t_end = -math.inf
+        self.ended: float | None = None     # an `end` record: the run's actual end (stopped early, realtime)
         self._header = devs.header
 
     def add(self, rec: Mapping[str, Any]) -> None:
         """One checked trace record (analysis.read); records of other kinds are skipped."""
         ev = rec["ev"]
         if ev not in EVENTS:
+            if ev == "end" and is_num(rec.get("t")) and math.isfinite(rec["t"]):
+                self.ended = float(rec["t"])
             return
         reason, flow, kind = rec.get("reason"), rec.get("flow"), rec.get("kind", "data")
         self.event(rec["t"], ev, rec["ch"], rec["dev"], rec["src"], rec.get("dst"), rec["seq"], rec["size"],
@@ -452,13 +455,15 @@ class Accumulator:
         """Per-flow metrics, channel counters and the conservation check of the events so far.  Settles
         the frames: call it once, at the end."""
         meta = self.meta
+        if end is None and self.ended is not None:
+            end = max(self.ended, self.t_end)
         if end is None:
             dur = meta.get("duration")
             end = max(dur if is_num(dur) else -math.inf, self.t_end)
             if not math.isfinite(end):
                 end = 0.0
         cons = _settle(self.frames, self.accs, self.devs, self.max_tx_seq, end, horizon, limit)
-        duration = meta.get("duration")
+        duration = meta.get("duration") if self.ended is None else self.ended
         flows = {name: _finish(a, self.mflows.get(name), duration if is_num(duration) else None)
                  for name, a in self.accs.items()}
         return Analysis(meta=meta, flows=flows, conservation=cons, channels=self._channels())
@@ -469,9 +474,10 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
     """Per-flow metrics and the conservation check in one pass over a trace (path or records).
 
     `horizon`: a transmitted frame with no outcome is in flight if its last tx is at or after
-    `end - horizon`, a violation otherwise.  `end`: end of the run (default: max of the meta duration
-    and the last event time).  `limit`: at most this many violation messages are kept (the count of all
-    is `conservation.total`).
+    `end - horizon`, a violation otherwise.  `end`: end of the run (default: the trace's `end` record
+    if it has one, a run stopped early or in realtime; else the max of the meta duration and the last
+    event time); rates are over that actual end too.  `limit`: at most this many violation messages are
+    kept (the count of all is `conservation.total`).
     """
     if is_columnar(src):      # whole columns: no JSON, no per-record dict, no per-record checks
         m, cols = read_columns(src)  # type: ignore[arg-type]

@@ -6,9 +6,13 @@
     broker   bus/broker.Broker: the modems on their keys, poses, trace, clock, control
     trace    the same JSONL as a virtual run (meta first), flushed every second and on exit
 
-SIGINT/SIGTERM (or the duration) stop the engine after the event it is running; then the broker
-undeclares, the trace is flushed and closed, and the session is closed: a frame enqueued before the
-signal has its outcome in the trace or is still in flight there (queued or on air).
+SIGINT/SIGTERM (or the duration) stop the engine after the event it is running; then every frame
+without an outcome is dropped `stopped` (its application hears `dropped stopped` if the modem still
+held it), the trace ends with an `end` record (the actual end time, reason `duration`, `signal` or
+`error`), the broker's outboxes drain (2 s at most), it undeclares, the trace is closed and the
+session too; the summary is printed.  Exit code 0 when the run reached its duration or was stopped on
+request; 2 when an event, a MAC or a tracing plug-in raised (reported once with its traceback; a
+tracing plug-in is disabled and the run goes on, anything else stops it) or the engine thread died.
 """
 
 from __future__ import annotations
@@ -18,8 +22,10 @@ import faulthandler
 import logging
 import math
 import os
+import signal
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -29,6 +35,7 @@ from ..bus.session import DEFAULT_ENDPOINT, BusError, locators, make_config, ope
 from ..errors import UserError
 from ..scene.model import Scene
 from . import ros2
+from .checks import build_network, plugin_failure, tracing_sink
 
 log = logging.getLogger("uwsimnet.bus.runtime")
 
@@ -180,9 +187,8 @@ def run_realtime(scene: Scene, args: Any) -> int:
 def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | None, external: set[str],
          hosted: Scene, foreign: set[str], trace: str, tmp: bool) -> int:
     from ..bus.broker import Broker
-    from ..engine.network import Network
     from ..kernel.realtime import Deferred, RealtimeClock
-    from ..trace.events import CallbackSink, JsonlSink, load_tracing_class
+    from ..trace.events import JsonlSink
     from ..traffic.flow import FlowSource
 
     world = scene.world
@@ -209,17 +215,17 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
 
     tune_threads()
     realtime_priority()
-    try:
-        net = Network(hosted, seed=args.seed, duration=duration if duration is not None else math.inf,
-                      flows=False)
-    except ValueError as e:
-        raise UserError(f"{scene.source}: {e}") from None
+    net = build_network(hosted, seed=args.seed, duration=duration if duration is not None else math.inf,
+                        flows=False)
+    plugin = tracing_sink(scene)
     for f in hosted.flows:
         if f.name not in external:
             net.flows.append(FlowSource(f, net.modems[f.src], net.sched, net.seeds("flow", f.name),
                                         net.duration))
+    failed = threading.Event()          # an event, a MAC or the engine raised: the run stops (exit 2)
     clock = RealtimeClock(net.sched, until=duration, speed=getattr(args, "speed", 1.0),
-                          spin=float(os.environ.get("UWSIMNET_SPIN") or 0.001))
+                          spin=float(os.environ.get("UWSIMNET_SPIN") or 0.001),
+                          on_error=lambda e: failed.set())
     try:
         conf = (make_config("client", connect=connect, connect_timeout_ms=3000, config_file=zconf)
                 if mode == "client" else make_config("router", listen=listen, config_file=zconf))
@@ -258,11 +264,8 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                     fh.flush()
                     last_flush[0] = time.monotonic()
             clock.idle_hooks.append(write_trace)
-            if scene.tracing.class_name:
-                try:
-                    net.tracer.add(CallbackSink(load_tracing_class(scene.tracing.class_name)))
-                except ValueError as e:
-                    raise UserError(f"{scene.source}:{scene.tracing.line}: {e}") from None
+            if plugin is not None:
+                net.tracer.add(plugin)
             try:
                 broker = Broker(session, net, clock, world=world, channels=channels, foreign=foreign)
                 broker.start()
@@ -297,15 +300,28 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
             pace = "realtime clock" if clock.speed == 1.0 else f"realtime clock x{clock.speed:g}"
             print(f"uwsimnet: running {until} ({pace}); trace {trace if not tmp else '(summary only)'}",
                   flush=True)
-            while not stop.event.is_set() and not clock.done.is_set():
+            while not stop.event.is_set() and not clock.done.is_set() and not failed.is_set():
                 stop.event.wait(0.2)
             if stop.event.is_set():
-                print(f"uwsimnet: stopping (signal {stop.signum}) at t={clock.now():.3f} s", flush=True)
+                print(f"uwsimnet: stopping ({signal.Signals(stop.signum).name}) at t={clock.now():.3f} s",
+                      flush=True)
         finally:
             faulthandler.dump_traceback_later(30, exit=True)     # a shutdown that hangs dies loudly
             clock.stop()
             if not clock.join(5.0):
                 log.error("the engine thread did not stop within 5 s")
+            if clock.first_error is not None or clock.fatal is not None:
+                e = clock.fatal or clock.first_error
+                reason, extra = "error", {"error": f"{type(e).__name__}: {e}"}
+            elif stop.event.is_set():
+                reason, extra = "signal", {"signal": signal.Signals(stop.signum).name}
+            else:
+                reason, extra = "duration", {}
+            if not clock.running:               # the engine has ended: this thread may touch the network
+                try:
+                    net.stop("stopped")         # statuses to the apps go out through the outboxes
+                except Exception:  # noqa: BLE001 - a network left broken by an error: said, the run ends
+                    log.exception("frames in flight could not be given their outcome")
             summary = {"t": net.sched.now, **clock.stats()}
             if ros is not None:
                 summary["ros2"] = dict(ros.bridge.problems.counts)
@@ -313,9 +329,12 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
             if broker is not None:
                 summary["bus"] = dict(broker.counters)
                 broker.close()
+                summary["edge"] = broker.edge_summary()
+                summary["ingress_warn"] = broker.ingress_warn_s
             if fh is not None:
                 if jsonl is not None:
                     jsonl.flush()
+                    JsonlSink(fh)(net.end_record(reason, **extra))
                 fh.flush()
                 fh.close()
             session.close()
@@ -323,6 +342,13 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
     _summary(trace, summary, net)
     if not tmp:
         print(f"trace: {trace}")
+    e = clock.fatal or clock.first_error
+    if e is not None:
+        raise UserError(f"{scene.source}: the run stopped at t={net.sched.now:.6g} s: {type(e).__name__}: {e}"
+                        " (traceback above; the trace ends there)")
+    bad = plugin_failure(plugin)
+    if bad:
+        raise UserError(f"{scene.source}:{scene.tracing.line}: {bad}")
     return 0
 
 
@@ -340,6 +366,27 @@ def _summary(trace: str, s: dict[str, Any], net: Any) -> None:
     bad = {k: v for k, v in (s.get("bus") or {}).items() if k not in ("tx_messages", "poses")}
     if s.get("ros2"):
         bad["ros2"] = s["ros2"]
-    console.print(f"{net.scene.name}: {s['t']:.3f} s realtime, {s['events']} events (late mean"
+    end = net.end or {}
+    how = f", stopped by {end['signal']}" if end.get("signal") else (", stopped by an error"
+                                                                     if end.get("reason") == "error" else "")
+    console.print(f"{net.scene.name}: {s['t']:.3f} s realtime{how}, {s['events']} events (late mean"
                   f" {s['late_mean'] * 1e6:.0f} us, max {s['late_max'] * 1e3:.2f} ms), {s['items']} messages,"
-                  f" {s['errors']} errors" + (f"; refused/ignored: {bad}" if bad else ""))
+                  f" {s['errors']} errors" + (f"; refused/ignored: {bad}" if bad else ""), soft_wrap=True)
+    # the edge (docs/runtime.md): ingress delay per modem, messages lost because a consumer did not keep up
+    edge = s.get("edge") or {}
+    rows = [(dev, e) for dev, e in edge.items() if not dev.startswith("*") and e.get("ingress_n")]
+    if rows:
+        worst = max(rows, key=lambda r: r[1]["ingress_max"])
+        n = sum(e["ingress_n"] for _, e in rows)
+        mean = sum(e["ingress_mean"] * e["ingress_n"] for _, e in rows) / n
+        warn = s.get("ingress_warn", 0.05)
+        flag = f" (over {warn * 1e3:.0f} ms: the engine did not keep up)" if worst[1]["ingress_max"] > warn else ""
+        console.print(f"ingress delay (tx put to engine): {n} messages, mean {mean * 1e3:.2f} ms, max"
+                      f" {worst[1]['ingress_max'] * 1e3:.2f} ms at {worst[0]}{flag}", markup=False, soft_wrap=True)
+    lost = {dev: e for dev, e in edge.items() if e.get("lost") or e.get("refused")}
+    for dev, e in sorted(lost.items()):
+        parts = [f"{n} {kind}" for kind, n in sorted((e.get("lost") or {}).items())]
+        if e.get("refused"):
+            parts.append(f"{e['refused']} tx refused (ingress lane full, status dropped fifo)")
+        console.print(f"lost at the edge: {dev}: {', '.join(parts)} (a consumer did not keep up)", markup=False,
+                      soft_wrap=True)

@@ -9,16 +9,20 @@ from __future__ import annotations
 
 import gc
 import gzip
+import signal
 import sys
-from contextlib import contextmanager
+import traceback
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..analysis import Accumulator, Analysis, flow_metrics, format_report, format_text
 from ..engine.network import Network
 from ..errors import UserError
+from ..kernel.scheduler import Interrupted
 from ..scene.load import SceneError, load_scene
-from ..trace.events import ArrowSink, CallbackSink, JsonlSink, load_tracing_class
+from ..trace.events import ArrowSink, JsonlSink
+from .checks import Interrupt, build_network, tracing_sink
 
 
 def _warn(msg: str) -> None:
@@ -72,46 +76,68 @@ def run_virtual(scene, *, seed: int | None, duration: float | None, trace_path: 
 def simulate(scene, *, seed: int | None, duration: float | None, trace_path: Path | None = None,
              progress: bool = True, metrics: bool = True) -> VirtualRun:
     """Run a scene in virtual time: the trace if `trace_path` (JSONL; `.gz` compressed; `.arrow` the
-    columnar trace, needs pyarrow), the per-flow metrics online if `metrics`."""
-    try:
-        net = Network(scene, seed=seed, duration=duration)
-    except ValueError as e:
-        raise UserError(f"{scene.source}: {e}") from None
-    if scene.tracing.class_name:
-        try:
-            net.tracer.add(CallbackSink(load_tracing_class(scene.tracing.class_name)))
-        except ValueError as e:
-            raise UserError(f"{scene.source}:{scene.tracing.line}: {e}") from None
+    columnar trace, needs pyarrow), the per-flow metrics online if `metrics`.
+
+    SIGINT/SIGTERM end the run between two events: frames without an outcome are dropped `stopped`,
+    the JSONL trace ends with an `end` record (reason `signal`) and is closed whole; `net.end` is that
+    record.  An exception of the engine or a plug-in ends it the same way (reason `error`), then
+    UserError."""
+    net = build_network(scene, seed=seed, duration=duration)
+    plugin = tracing_sink(scene)
+    if plugin is not None:
+        net.tracer.add(plugin)
     meta = net.meta()
     acc = None
     if metrics:
         acc = Accumulator(meta)
         net.tracer.listen(acc.on_event)
-    if trace_path is None:
-        _advance(net, net.duration, progress)
-    else:
-        trace_path.parent.mkdir(parents=True, exist_ok=True)
-        if trace_path.suffix == ".arrow":
-            try:
-                sink = ArrowSink(trace_path, meta)
-            except ValueError as e:
-                raise UserError(f"{trace_path}: {e}") from None
-            net.tracer.listen(sink.event)
-            try:
-                _advance(net, net.duration, progress)
-            finally:
-                sink.close()
-        else:
-            opener = gzip.open if trace_path.suffix == ".gz" else open
-            with opener(trace_path, "wb") as fh:
-                jsonl = JsonlSink(fh)
+    failed: BaseException | None = None
+    with ExitStack() as files:
+        jsonl = None
+        if trace_path is not None:
+            trace_path.parent.mkdir(parents=True, exist_ok=True)
+            if trace_path.suffix == ".arrow":
+                try:
+                    arrow = ArrowSink(trace_path, meta)
+                except ValueError as e:
+                    raise UserError(f"{trace_path}: {e}") from None
+                files.callback(arrow.close)
+                net.tracer.listen(arrow.event)
+            else:
+                opener = gzip.open if trace_path.suffix == ".gz" else open
+                jsonl = JsonlSink(files.enter_context(opener(trace_path, "wb")))
+                files.callback(jsonl.flush)     # before the file closes (an ExitStack unwinds in reverse)
                 jsonl.header(meta)
                 net.tracer.listen(jsonl.event)
-                try:
-                    _advance(net, net.duration, progress)
-                finally:
-                    jsonl.flush()
+        failed = _run_to_end(net, progress)
+        if net.end is not None:
+            if jsonl is not None:
+                jsonl(net.end)                  # flushes the batched events first: the end record is last
+            if acc is not None:
+                acc.ended = net.end["t"]
+    if failed is not None:
+        raise UserError(f"{scene.source}: the run stopped at t={net.now:.6g} s: {type(failed).__name__}:"
+                        f" {failed} (traceback above; the trace ends there)")
     return VirtualRun(net, acc.result() if acc is not None else None)
+
+
+def _run_to_end(net: Network, progress: bool) -> BaseException | None:
+    """Advance to the duration, or to a signal or an error: then every frame still held is dropped
+    `stopped` and `net.end` is set.  Returns the error that cut the run, if one did."""
+    with Interrupt(net) as stop:
+        try:
+            _advance(net, net.duration, progress)
+        except Interrupted:
+            net.stop("stopped")
+            net.end_record("signal", signal=signal.Signals(stop.signum or signal.SIGINT).name)
+        except Exception as e:  # noqa: BLE001 - a plug-in or engine error: said once, the trace ends true
+            traceback.print_exc(file=sys.stderr)
+            try:
+                net.stop("stopped")
+            finally:
+                net.end_record("error", error=f"{type(e).__name__}: {e}")
+            return e
+    return None
 
 
 @contextmanager
@@ -161,6 +187,9 @@ def show_metrics(metrics) -> None:
 
 def print_summary(trace, net) -> None:
     """The per-flow table of a finished run (from its online Analysis, or by reading a trace file), and
-    one line on what was simulated."""
+    one line on what was simulated (and how it ended, if early)."""
     show_metrics(trace.flows if isinstance(trace, Analysis) else flow_metrics(trace))
-    print(f"{net.scene.name}: {net.duration:g} s simulated, seed {net.seed}, {net.sched.events_run} events")
+    end = net.end
+    how = "" if end is None else f" (stopped by {end.get('signal', end['reason'])} of {net.duration:g} s)"
+    t = net.duration if end is None else end["t"]
+    print(f"{net.scene.name}: {t:g} s simulated{how}, seed {net.seed}, {net.sched.events_run} events")

@@ -15,16 +15,21 @@ on the key space of docs/gli-protocol.md:
   leaves the channel and what it held ends `dropped` reason `swapped`, its tx is ignored); when the
   token goes the device is re-added from the scene and served again.
 
-Threading: Zenoh callbacks run on Zenoh's threads and only hand raw bytes to `clock.call_soon`; all
-decoding, simulation and publishing happens on the engine thread.  A bad message never stops the
-broker: it is answered on the modem's `status` with `dropped` and a reason, counted, and logged
-(rate-limited).
+Threading: Zenoh callbacks run on Zenoh's threads and only hand raw bytes on: a tx message to its
+modem's ingress `Lane` (bounded; the engine takes the lanes round-robin, so a flood on one modem does
+not delay the others), anything else to `clock.call_soon`.  Decoding and simulation happen on the
+engine thread, which never makes a Zenoh put: rx, status, trace, pose and clock messages leave through
+bounded `Outbox`es (bus/outbox.py), one publisher thread each (one per modem), so a consumer that
+cannot keep up loses messages at the edge, counted per modem (`info` "edge", the run summary), and
+never stalls the engine or another modem.  A bad message never stops the broker: it is answered on
+the modem's `status` with `dropped` and a reason, counted, and logged (rate-limited).
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import sys
 import time
 from collections import Counter
 from collections.abc import Iterable
@@ -36,6 +41,9 @@ from uwsimnet_gli.wire import Keys, check_chunk, is_chunk, parse
 
 from ..kernel.realtime import Deferred
 from .control import Control
+from .endpoint import BLOCK, ModemEndpoint
+from .hil import RETOKEN, SWAP_IN, SWAP_OUT, HilSwap
+from .outbox import INGRESS_WARN_S, LANE_CAPACITY, OUTBOX_CAPACITY, Lane, Outbox
 
 if TYPE_CHECKING:
     from ..engine.network import Network
@@ -44,13 +52,8 @@ if TYPE_CHECKING:
     from ..phy.modem import Modem
 
 log = logging.getLogger("uwsimnet.bus.broker")
-
-BLOCK = zenoh.CongestionControl.BLOCK
-"""rx frames and status events wait for room rather than being dropped: both come at modem rates (small,
-rare), and with *drop* Zenoh gives up after `wait_before_drop` (1 ms) without a free batch, which a loaded
-machine hits: the app then missed frames the trace says it received (seen in the HIL formation run).
-*Block* waits at most `wait_before_close` (5 s) and then closes the transport to the stuck peer."""
-
+SWITCH_INTERVAL = 0.0005
+"""s: the interpreter's thread switch interval while a broker runs (see Broker.start)."""
 
 def _direct(fn: Any) -> Any:
     """Run `fn` on Zenoh's network thread instead of a Python thread of its own: one thread hop (and
@@ -80,15 +83,16 @@ class Throttle:
             self._hidden[key] += 1
 
 
-class Endpoint:
-    """What the broker holds for one served modem."""
+class Endpoint(ModemEndpoint):
+    """What the broker holds for one served modem: its output keys and outbox (bus/endpoint.py, shared
+    with the driver host), its ingress lane (its tx messages wait there for the engine), its token."""
 
-    __slots__ = ("modem", "rx_pub", "status_pub", "token", "bad")
+    __slots__ = ("modem", "token", "bad", "lane")
 
-    def __init__(self, modem: Modem, rx_pub: Any, status_pub: Any) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, modem: Modem, out: Outbox, lane: Lane) -> None:
+        super().__init__(session, keys, modem.id, out)
         self.modem = modem
-        self.rx_pub = rx_pub
-        self.status_pub = status_pub
+        self.lane = lane
         self.token: Any = None
         self.bad: Counter[str] = Counter()      # messages refused before reaching the modem, by reason
 
@@ -97,7 +101,9 @@ class Broker:
     def __init__(self, session: zenoh.Session, net: Network, clock: RealtimeClock, *,
                  world: str | None = None, channels: Iterable[int] | None = None,
                  tx_limit: int = wire.MAX_TX_MESSAGE, publish_trace: bool = True,
-                 clock_rate_hz: float = 10.0, foreign: Iterable[str] = ()) -> None:
+                 clock_rate_hz: float = 10.0, foreign: Iterable[str] = (),
+                 outbox_capacity: int = OUTBOX_CAPACITY, lane_capacity: int = LANE_CAPACITY,
+                 ingress_warn_s: float = INGRESS_WARN_S) -> None:
         self.session = session
         self.net = net
         self.clock = clock
@@ -108,14 +114,24 @@ class Broker:
         self.publish_trace = publish_trace
         self.clock_rate_hz = clock_rate_hz
         self.endpoints: dict[str, Endpoint] = {}
-        self.real: set[str] = set()
-        """Modem ids for which a real driver holds `driver/real`."""
-        self.swapped: dict[str, tuple[str, Any]] = {}
-        """Modems handed to a real driver: (vehicle, device config) to put them back when it leaves."""
+        self.hil = HilSwap()
+        """Who serves each id, the simulator or a real driver (bus/hil.py); `real`, `swapped` are its sets."""
         self.foreign: set[str] = set(foreign)
         """Modem ids of the scene served by other brokers (their channels are not ours): ignored here."""
         self.counters: Counter[str] = Counter()
         self.warn = Throttle()
+        self.outbox_capacity = outbox_capacity
+        self.lane_capacity = lane_capacity
+        self.ingress_warn_s = ingress_warn_s
+        self.lanes: dict[str, Lane] = {}
+        """Ingress lanes by modem id (kept after a modem leaves: its counts stay in the summary)."""
+        self.outboxes: dict[str, Outbox] = {}
+        """Outboxes by modem id, plus `*trace` and `*misc` (poses, clock, answers to unknown ids)."""
+        self._other_lane = Lane("*", lane_capacity)         # tx for ids we do not serve (refused there)
+        self._misc = self._outbox("*misc", outbox_capacity)
+        self._trace_out: Outbox | None = None
+        self._leaving: dict[Modem, Outbox] = {}
+        """Simulated modems handed to a real driver: what they still say goes out here (HIL swap)."""
         self._entities: list[Any] = []
         self._trace_pubs: dict[int, Any] = {}
         self._trace_buf: Deferred | None = None
@@ -128,8 +144,23 @@ class Broker:
         self._closed = False
         self.control = Control(self)
 
+    @property
+    def real(self) -> set[str]:
+        """Modem ids for which a real driver holds `driver/real`."""
+        return self.hil.real
+
+    @property
+    def swapped(self) -> dict[str, tuple[str, Any]]:
+        """Modems handed to a real driver: (vehicle, device config) to put them back when it leaves."""
+        return self.hil.held
+
     # -- lifecycle (main thread, before the clock starts) ----------------------------------------
     def start(self) -> None:
+        # The engine thread shares the GIL with the outbox threads and Zenoh's callbacks; with Python's
+        # default 5 ms switch interval a busy outbox thread (a flood's statuses) could hold the engine
+        # several times 5 ms per frame.  0.5 ms bounds that wait (measured in tests/test_edge.py).
+        if sys.getswitchinterval() > SWITCH_INTERVAL:
+            sys.setswitchinterval(SWITCH_INTERVAL)
         net, k, s = self.net, self.keys, self.session
         for name in net.poses.names:
             check_chunk(name, "vehicle name")
@@ -147,6 +178,7 @@ class Broker:
         if self.publish_trace:
             for ch in net.channels:
                 self._trace_pubs[ch] = s.declare_publisher(k.trace(ch))
+            self._trace_out = self._outbox("*trace", 16 * self.outbox_capacity)   # every record of the channels
             self._trace_buf = Deferred(self._trace_sink)
             net.tracer.add(self._trace_buf)
             self.clock.idle_hooks.append(self._trace_buf.flush)
@@ -172,8 +204,12 @@ class Broker:
         if self._trace_buf is not None:
             with contextlib.suppress(Exception):
                 self._trace_buf.flush()
-        for e in self._entities:
+        for e in self._entities:            # no more input
             self._undeclare(e)
+        self._entities.clear()
+        deadline = time.monotonic() + 2.0   # what is queued goes out (a stuck consumer does not hold us)
+        for out in self.outboxes.values():
+            out.close(max(0.05, deadline - time.monotonic()))
         for ep in self.endpoints.values():
             for e in (ep.token, ep.rx_pub, ep.status_pub):
                 self._undeclare(e)
@@ -192,10 +228,18 @@ class Broker:
     def serves(self, channel: int) -> bool:
         return self.channels is None or channel in self.channels
 
+    def _outbox(self, name: str, capacity: int) -> Outbox:
+        out = self.outboxes.get(name)
+        if out is None or out._closing:
+            out = self.outboxes[name] = Outbox(name, capacity)
+        return out
+
     def attach(self, m: Modem) -> Endpoint:
         k, s = self.keys, self.session
-        ep = Endpoint(m, s.declare_publisher(k.rx(m.id), congestion_control=BLOCK, express=True),
-                      s.declare_publisher(k.status(m.id), congestion_control=BLOCK, express=True))
+        lane = self.lanes.get(m.id)
+        if lane is None:
+            lane = self.lanes[m.id] = Lane(m.id, self.lane_capacity)
+        ep = Endpoint(s, k, m, self._outbox(m.id, self.outbox_capacity), lane)
         self.endpoints[m.id] = ep
         self.foreign.discard(m.id)
         if m.id not in self.real:
@@ -208,8 +252,9 @@ class Broker:
         ep = self.endpoints.pop(dev, None)
         if ep is None:
             return
-        for e in (ep.token, ep.rx_pub, ep.status_pub):
-            self._undeclare(e)
+        self._undeclare(ep.token)
+        ep.token = None
+        ep.undeclare_after_queued()
 
     def serving(self, dev: str) -> Endpoint | None:
         """The endpoint if this broker serves `dev` right now (not handed to a real driver)."""
@@ -219,11 +264,58 @@ class Broker:
 
     # -- Zenoh callbacks: enqueue only -----------------------------------------------------------
     def _on_tx_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
         pl = sample.payload
-        if len(pl) > self.tx_limit:                      # do not copy what we will refuse anyway
-            self.clock.call_soon(self._handle_tx, str(sample.key_expr), None, len(pl))
-        else:
-            self.clock.call_soon(self._handle_tx, str(sample.key_expr), pl.to_bytes(), 0)
+        size = len(pl)
+        raw = None if size > self.tx_limit else pl.to_bytes()     # do not copy what we will refuse anyway
+        k = parse(key)
+        dev = k.name if k is not None else None
+        lane = self.lanes.get(dev) if dev is not None and dev in self.endpoints else None
+        if lane is None:
+            lane = self._other_lane
+        item = (self.clock.now(), key, raw, size)
+        r = lane.offer(item)
+        if r:
+            self.clock.call_soon(self._drain_lane, lane)
+        elif r is None:
+            self._lane_full(lane, dev, raw)
+
+    def _lane_full(self, lane: Lane, dev: str | None, raw: bytes | None) -> None:
+        """(Zenoh thread) A modem's ingress lane is full: the message is refused like a full FIFO
+        (status `dropped`, reason `fifo`), counted, never traced (the modem never saw it)."""
+        self.counters["ingress_fifo"] += 1
+        ep = self.endpoints.get(dev) if dev is not None else None
+        if ep is None:
+            return
+        tag = None
+        if raw is not None:
+            with contextlib.suppress(wire.CodecError):
+                tag = wire.decode_tx(raw, self.tx_limit).tag
+        ep.status(tag, "dropped", "fifo", self.clock.now())
+        self.warn(f"ingress:{dev}", "%s: tx dropped (fifo): its ingress lane is full (%d messages waiting for"
+                  " the engine)", dev, len(lane))
+
+    def _drain_lane(self, lane: Lane) -> None:
+        """(engine) One tx message of one modem, then back in line behind the other modems."""
+        got = lane.take()
+        if got is None:
+            return
+        delay, (stamp, key, raw, size) = got
+        sched = self.net.sched
+        if stamp > sched.now:           # arrived after this turn was queued: not before its time
+            nt = sched.next_time()
+            if nt is None or nt >= stamp:
+                sched.now = stamp
+        if delay > self.ingress_warn_s:
+            self.counters["ingress_late"] += 1
+            self.warn(f"ingress_late:{lane.name}", "%s: ingress delay %.1f ms (put to engine) is over %.0f ms:"
+                      " the engine cannot keep up with what arrives", lane.name, delay * 1e3,
+                      self.ingress_warn_s * 1e3)
+        try:
+            self._handle_tx(key, raw, size)
+        finally:
+            if lane.more():
+                self.clock.call_soon(self._drain_lane, lane)
 
     def _on_pose_sample(self, sample: zenoh.Sample) -> None:
         pl = sample.payload
@@ -249,15 +341,15 @@ class Broker:
             ep.bad[reason] += 1
         key = reason if ep is None else f"{reason}:{dev}"        # bounded: unknown ids share one key
         self.warn(key, "%s: tx dropped (%s): %s", dev, reason, detail)
-        pub = ep.status_pub if ep is not None else None
-        payload = wire.encode_status(tag, "dropped", reason, self.net.sched.now)
-        try:
-            if pub is not None:
-                pub.put(payload)
-            else:
-                self.session.put(self.keys.status(dev), payload, congestion_control=BLOCK)
-        except Exception as e:  # noqa: BLE001 - answering is best effort
-            log.debug("status for %s not sent: %s", dev, e)
+        if ep is not None:
+            ep.status(tag, "dropped", reason, self.net.sched.now)
+        else:
+            self._misc.put(self._put_status(dev), wire.encode_status(tag, "dropped", reason, self.net.sched.now),
+                           "status")
+
+    def _put_status(self, dev: str) -> Any:
+        key = self.keys.status(dev)
+        return lambda payload: self.session.put(key, payload, congestion_control=BLOCK)
 
     def _handle_tx(self, key: str, raw: bytes | None, size: int) -> None:
         k = parse(key)
@@ -290,32 +382,39 @@ class Broker:
             self.warn(f"nopose:{dev}", "%s: tx dropped (nopose): vehicle %s has no pose yet", dev, m.vehicle)
         m.send(req.dst, len(req.data), data=req.data, flow=req.flow, tag=req.tag, refuse=refuse, msg=req.msg)
 
-    def _on_rx(self, m: Modem, frame: Frame, t: float) -> None:
+    def _on_rx(self, m: Modem, frame: Frame, t: float, dist: float) -> None:
         ep = self.serving(m.id)
         if ep is None:
             return
         data = frame.data if frame.data is not None else bytes(frame.payload)
-        ep.rx_pub.put(wire.encode_rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, m.rx_dist, frame.msg))
+        if not ep.rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, dist, frame.msg):
+            self._edge_drop(m.id, "rx")
 
     def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
         tag = frame.tag if isinstance(frame.tag, int) and not isinstance(frame.tag, bool) else None
-        if getattr(m, "hil_swapped", False):
+        leaving = self._leaving.get(m)
+        if leaving is not None:
             # a simulated modem handed to a real driver: what it still held ends here, said once
             if event == "dropped" and reason == "removed":
                 reason = "swapped"
-            with contextlib.suppress(Exception):
-                self.session.put(self.keys.status(m.id), wire.encode_status(tag, event, reason, t, frame.seq),
-                                 congestion_control=BLOCK)
+            leaving.put(self._put_status(m.id), wire.encode_status(tag, event, reason, t, frame.seq), "status")
             return
         ep = self.serving(m.id)
         if ep is None or ep.modem is not m:
             return
-        ep.status_pub.put(wire.encode_status(tag, event, reason, t, frame.seq))
+        if not ep.status(tag, event, reason, t, frame.seq):
+            self._edge_drop(m.id, "status")
+
+    def _edge_drop(self, dev: str, kind: str) -> None:
+        self.counters[f"edge_{kind}"] += 1
+        self.warn(f"edge:{dev}", "%s: %s message dropped at the edge: its consumer does not keep up (outbox"
+                  " of %d full)", dev, kind, self.outbox_capacity)
 
     def _trace_sink(self, rec: dict) -> None:
         pub = self._trace_pubs.get(rec["ch"])
-        if pub is not None:
-            pub.put(wire.pack(rec))
+        out = self._trace_out
+        if pub is not None and out is not None and not out.put(pub.put, wire.pack(rec), "trace"):
+            self.counters["edge_trace"] += 1
 
     def _handle_pose(self, key: str, raw: bytes | None) -> None:
         k = parse(key)
@@ -356,29 +455,23 @@ class Broker:
             return
         dev = k.name
         if present:
-            if dev in self.real:
-                return
             ep = self.endpoints.get(dev)
-            if ep is not None:
+            if self.hil.driver_up(dev, served=ep is not None) == SWAP_OUT:
                 self._swap_out(dev, ep)
-            self.real.add(dev)
-        else:
-            if dev not in self.real:
+            return
+        action, held = self.hil.driver_down(dev, in_network=dev in self.net.modems)
+        if action == SWAP_IN:
+            vehicle, cfg = held
+            try:
+                m = self.net.add_device(vehicle, cfg)
+            except ValueError as e:
+                log.warning("%s: the real driver left but the simulated modem cannot come back: %s", dev, e)
                 return
-            self.real.discard(dev)
-            held = self.swapped.pop(dev, None)
-            if held is not None and dev not in self.net.modems:
-                vehicle, cfg = held
-                try:
-                    m = self.net.add_device(vehicle, cfg)
-                except ValueError as e:
-                    log.warning("%s: the real driver left but the simulated modem cannot come back: %s", dev, e)
-                    return
-                self.attach(m)
-                self.counters["swap_in"] += 1
-                log.info("%s: the real driver left; the simulated modem serves it again", dev)
-            elif dev in self.endpoints and self.endpoints[dev].token is None:
-                self.endpoints[dev].token = self.session.liveliness().declare_token(self.keys.driver(dev, "sim"))
+            self.attach(m)
+            self.counters["swap_in"] += 1
+            log.info("%s: the real driver left; the simulated modem serves it again", dev)
+        elif action == RETOKEN and dev in self.endpoints and self.endpoints[dev].token is None:
+            self.endpoints[dev].token = self.session.liveliness().declare_token(self.keys.driver(dev, "sim"))
 
     def _swap_out(self, dev: str, ep: Endpoint) -> None:
         """A real driver takes `dev` (HIL swap): the simulated modem leaves the channel, so simulated
@@ -388,15 +481,30 @@ class Broker:
         if ep.token is not None:
             self._undeclare(ep.token)
             ep.token = None
-        m.hil_swapped = True                      # type: ignore[attr-defined]  (see _on_status)
+        self._leaving[m] = self._misc             # see _on_status
         while m.fifo:
             m.drop(m.fifo_pop(), "swapped")
-        self.swapped[dev] = (m.vehicle, m.cfg)
+        self.hil.swapped_out(dev, m.vehicle, m.cfg)
         with contextlib.suppress(ValueError):
             self.net.remove_device(dev)
         self.detach(dev)
         self.counters["swap_out"] += 1
         log.info("%s: a real driver took over; the simulated modem left the channel", dev)
+
+    def edge_summary(self) -> dict[str, Any]:
+        """Per modem: messages lost at the edge (outbox full, by kind; ingress lane full) and the ingress
+        delay (count, mean, max wall s); plus the trace and misc outboxes.  For the run summary."""
+        out: dict[str, Any] = {}
+        for dev, lane in self.lanes.items():
+            ob = self.outboxes.get(dev)
+            out[dev] = {"lost": dict(ob.dropped) if ob is not None else {}, "refused": lane.refused,
+                        "ingress_n": lane.n, "ingress_mean": lane.delay_sum / lane.n if lane.n else 0.0,
+                        "ingress_max": lane.delay_max}
+        for name in ("*trace", "*misc"):
+            ob = self.outboxes.get(name)
+            if ob is not None and ob.dropped:
+                out[name] = {"lost": dict(ob.dropped)}
+        return out
 
     # -- queries ---------------------------------------------------------------------------------
     def info(self, dev: str) -> dict[str, Any]:
@@ -406,8 +514,9 @@ class Broker:
         cfg = m.cfg
         known = bool(net.poses.known[m.vehicle_index])
         pos = net.poses.positions(net.sched.now)[m.vehicle_index] if known else None
+        ep = self.endpoints[dev]
         counters = dict(m.counters)
-        counters.update(self.endpoints[dev].bad)
+        counters.update(ep.bad)
         return {
             "id": m.id, "kind": "sim", "world": self.keys.world, "address": m.address, "vehicle": m.vehicle,
             "tx_channel": m.tx_channel.id, "rx_channel": m.rx_channel.id, "bitrate": m.bitrate,
@@ -420,6 +529,9 @@ class Broker:
             "phy_busy": m.phy_busy, "mac": cfg.mac.name, "pose_known": known,
             "position": None if pos is None else [float(x) for x in pos],
             "counters": counters, "config": cfg.model_dump(mode="json", exclude={"line"}),
+            # the edge (docs/runtime.md): messages lost because their consumer did not keep up, and the
+            # ingress delay (wall s from the tx put reaching the broker to the engine taking it)
+            "edge": ep.out.stats(), "ingress": ep.lane.stats(),
             "t": net.sched.now, "epoch": self.clock.wall_epoch(), "speed": self.clock.speed,
         }
 
@@ -495,7 +607,7 @@ class Broker:
                 for name in names:
                     pub = self._pose_pubs.get(name)
                     if pub is not None:
-                        pub.put(wire.encode_pose(pos[idx[name]], t=now))
+                        self._misc.put(pub.put, wire.encode_pose(pos[idx[name]], t=now), "pose")
         if self._clock_due:
             self._clock_due = False
             self.publish_clock()
@@ -507,7 +619,7 @@ class Broker:
 
     def publish_clock(self) -> None:
         if self._clock_pub is not None:
-            self._clock_pub.put(wire.pack(self.clock_sample()))
+            self._misc.put(self._clock_pub.put, wire.pack(self.clock_sample()), "clock")
 
     def _clock_tick(self) -> None:
         if self._clock_due:

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..app import ros2
+from ..app.checks import check, failed_plugin
 from ..app.virtual import load_scene_file, print_summary, show_metrics, simulate
 from ..errors import UserError, UwsimnetError
 from . import deploy, drivers, experiment, sweep, view
@@ -27,6 +28,7 @@ DEFAULT_VIEW_ROUTER = "tcp/127.0.0.1:7447"
 
 def cmd_validate(args: argparse.Namespace) -> int:
     scene = load_scene_file(args.scene, verbose=args.verbose)
+    check(scene)                        # the build step and the tracing plug-in, as a run makes them
     n_dev = len(scene.devices())
     print(f"{args.scene}: ok ({len(scene.channels)} channels, {len(scene.vehicles)} vehicles, {n_dev} devices,"
           f" {len(scene.flows)} flows)")
@@ -91,13 +93,16 @@ def cmd_run(args: argparse.Namespace) -> int:
             run = simulate(scene, seed=args.seed, duration=args.duration, trace_path=path)
             print_summary(run.analysis, run.net)
             view.view_after_run(args, str(path))
-        return 0
-    run = simulate(scene, seed=args.seed, duration=args.duration, trace_path=Path(trace) if trace else None)
-    print_summary(run.analysis, run.net)        # online: the trace is not read back
-    if trace:
-        print(f"trace: {trace}")
-        if args.view:
-            view.view_after_run(args, trace)
+    else:
+        run = simulate(scene, seed=args.seed, duration=args.duration, trace_path=Path(trace) if trace else None)
+        print_summary(run.analysis, run.net)        # online: the trace is not read back
+        if trace:
+            print(f"trace: {trace}")
+            if args.view:
+                view.view_after_run(args, trace)
+    bad = failed_plugin(run.net)
+    if bad:
+        raise UserError(f"{scene.source}:{scene.tracing.line}: {bad}")
     return 0
 
 

@@ -179,7 +179,7 @@ class SimBackend:
             except Exception:  # noqa: BLE001 - a listener must not break the engine
                 log.exception("%s: status listener raised", self.id)
 
-    def _on_rx(self, modem: Modem, frame: Frame, t: float) -> None:
+    def _on_rx(self, modem: Modem, frame: Frame, t: float, _dist: float) -> None:
         self.counters["received"] += 1
         dist, prop, vel = self.world.link(frame.dev, modem, frame.t_tx)
         sender = self.world.net.modems.get(frame.dev)

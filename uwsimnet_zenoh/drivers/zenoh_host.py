@@ -9,7 +9,11 @@
 * `driver.on_frame` -> `modem/<id>/rx` ({src, dst, data, seq (per driver, counting), t_tx, t_rx});
   times are the broker's simulation time when its `clock` is heard, else seconds since the host started.
 * `driver.on_status` -> `modem/<id>/status` (same vocabulary as the simulator's modems).
-* `modem/<id>/info` (queryable) -> `driver.info()` plus `id`, `kind: real`, `world`.
+* `modem/<id>/info` (queryable) -> `driver.info()` plus `id`, `kind: real`, `world`, `edge`.
+
+rx and status leave through the same `bus.endpoint.ModemEndpoint` as the simulator's modems (BLOCK
+congestion control, the modem's outbox): the driver's I/O thread never waits on Zenoh, and what a consumer
+that does not keep up lost is counted on `info` (`edge`).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import zenoh
 from uwsimnet_gli import wire
 from uwsimnet_gli.wire import Keys
 
+from ..bus.endpoint import ModemEndpoint
 from .base import Driver, RxFrame, TxStatus
 
 log = logging.getLogger("uwsimnet.drivers.host")
@@ -59,8 +64,7 @@ class DriverHost:
         self.driver.on_status.append(self._on_status)
         self._ents.append(s.declare_subscriber(k.clock, self._on_clock))
         self._ents.append(s.liveliness().declare_subscriber(k.driver(dev, "sim"), self._on_sim, history=True))
-        self._rx_pub = s.declare_publisher(k.rx(dev), express=True)
-        self._st_pub = s.declare_publisher(k.status(dev), express=True)
+        self._ep = ModemEndpoint(s, k, dev)
         self._token = s.liveliness().declare_token(k.driver(dev, "real"))
         time.sleep(0.05)                      # let the history of driver/sim arrive
         deadline = time.monotonic() + wait_sim
@@ -77,10 +81,13 @@ class DriverHost:
         for fn, lst in ((self._on_frame, self.driver.on_frame), (self._on_status, self.driver.on_status)):
             with contextlib.suppress(ValueError):
                 lst.remove(fn)
-        for e in (*self._ents, getattr(self, "_rx_pub", None), getattr(self, "_st_pub", None), self._token):
+        for e in (*self._ents, self._token):
             if e is not None:
                 with contextlib.suppress(Exception):
                     e.undeclare()
+        ep = getattr(self, "_ep", None)
+        if ep is not None:
+            ep.close(1.0)
         self._ents = []
         self._token = None
 
@@ -105,7 +112,7 @@ class DriverHost:
             req = wire.decode_tx(sample.payload.to_bytes())
         except wire.CodecError as e:
             self.counters["bad"] += 1
-            self._st_pub.put(wire.encode_status(e.tag, "dropped", e.reason, self.now()))
+            self._ep.status(e.tag, "dropped", e.reason, self.now())
             return
         self.counters["tx"] += 1
         self.driver.send(req.dst, req.data, req.tag)
@@ -117,7 +124,7 @@ class DriverHost:
             except Exception as e:  # noqa: BLE001
                 info = {"error": str(e)}
             info.update({"id": self.id, "kind": "real", "world": self.keys.world, "t": self.now(),
-                         "host_counters": dict(self.counters)})
+                         "host_counters": dict(self.counters), "edge": self._ep.stats()})
             if info.get("address") is None:
                 info["address"] = self.driver.address
             query.reply(self.keys.info(self.id), wire.pack(_plain(info)))
@@ -127,14 +134,11 @@ class DriverHost:
         self.counters["rx"] += 1
         seq, self._seq = self._seq, self._seq + 1
         t = self.now()
-        with contextlib.suppress(Exception):
-            self._rx_pub.put(wire.encode_rx(int(f.src), int(f.dst), bytes(f.data), seq, t, t, msg=_rx_msg(f.meta)))
+        self._ep.rx(int(f.src), int(f.dst), bytes(f.data), seq, t, t, msg=_rx_msg(f.meta))
 
     def _on_status(self, st: TxStatus) -> None:
         self.counters["status"] += 1
-        tag = st.tag if isinstance(st.tag, int) and not isinstance(st.tag, bool) else None
-        with contextlib.suppress(Exception):
-            self._st_pub.put(wire.encode_status(tag, st.event, st.reason, self.now()))
+        self._ep.status(st.tag, st.event, st.reason, self.now())
 
 
 def _rx_msg(meta: dict[str, Any] | None) -> dict[str, Any] | None:

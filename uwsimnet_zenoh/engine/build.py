@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device, MacSpec
     from ..trace.events import Tracer
 
-__all__ = ["DEFAULT_CARRIER_KHZ", "DEFAULT_POWER_W", "FixedBerLink", "build_error_model", "build_modem",
+__all__ = ["DEFAULT_CARRIER_KHZ", "DEFAULT_POWER_W", "BuildError", "FixedBerLink", "build_error_model", "build_modem",
            "channel_options", "channel_params", "default_bitrate", "make_mac", "modem_error_model",
            "modem_params", "prop_s_per_m", "sound_speed"]
 
@@ -128,16 +128,68 @@ def modem_error_model(device: Device, tx_channel: Channel,
     return build_error_model(device, tx_channel)
 
 
+class BuildError(ValueError):
+    """A device the build step cannot make (its MAC, its loss model), with the scene line to blame."""
+
+    def __init__(self, msg: str, line: int = 0) -> None:
+        super().__init__(msg)
+        self.line = line
+
+
+class _ReadParams(dict):
+    """A MAC's parameters, noting which ones it looks at (to refuse the ones it does not know)."""
+
+    def __init__(self, *a: object) -> None:
+        super().__init__(*a)
+        self.read: set[str] = set()
+
+    def get(self, key, default=None):  # noqa: ANN001, ANN201
+        self.read.add(key)
+        return super().get(key, default)
+
+    def __getitem__(self, key):  # noqa: ANN001, ANN204
+        self.read.add(key)
+        return super().__getitem__(key)
+
+    def __contains__(self, key: object) -> bool:
+        self.read.add(key)  # type: ignore[arg-type]
+        return super().__contains__(key)
+
+
 def make_mac(modem: Modem, spec: MacSpec) -> Mac:
-    """The MAC a device's `<macProtocol>` names, built with its modem as the MAC's context."""
-    return resolve(spec.name)(modem, dict(spec.params))
+    """The MAC a device's `<macProtocol>` names, built with its modem as the MAC's context.
+
+    Parameters the MAC does not look at while it is built are refused (a misspelt `maxBackof` would
+    otherwise silently run with the default); a MAC that reads parameters later declares them in a
+    class attribute `params_known`.  Any failure of a plug-in's constructor is a one-line error."""
+    cls = resolve(spec.name)
+    params = _ReadParams(spec.params)
+    try:
+        mac = cls(modem, params)
+    except ValueError:
+        raise
+    except Exception as e:  # noqa: BLE001 - a plug-in's constructor: one line, not a traceback
+        raise ValueError(f"MAC protocol {spec.name!r} could not be built: {type(e).__name__}: {e}") from None
+    unknown = set(spec.params) - params.read - set(getattr(cls, "params_known", ()))
+    if unknown:
+        known = sorted(params.read | set(getattr(cls, "params_known", ()))) or ["none"]
+        raise ValueError(f"macProtocol {spec.name}: unknown parameter(s) {', '.join(sorted(unknown))}"
+                         f" (it reads: {', '.join(known)})")
+    return mac
 
 
 def build_modem(cfg: Device, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
                 tx: PhyChannel, rx: PhyChannel, seeds: Callable[[str, str], int],
                 tx_spec: Channel, rx_spec: Channel) -> Modem:
     """One modem with its loss model and its MAC, listening on its rx channel."""
-    error = modem_error_model(cfg, tx_spec, rx_spec) or RateErrorModel(cfg.error.expr, cfg.error.unit)
+    try:
+        error = modem_error_model(cfg, tx_spec, rx_spec) or RateErrorModel(cfg.error.expr, cfg.error.unit)
+    except ValueError as e:
+        raise BuildError(f"device {cfg.dccomms_id!r}: {e}", cfg.error.line or cfg.line) from None
     modem = Modem(cfg, vehicle, vehicle_index, sched, tracer, tx, rx, seeds, error)
-    modem.attach_mac(make_mac(modem, cfg.mac))
+    try:
+        mac = make_mac(modem, cfg.mac)
+    except ValueError as e:
+        raise BuildError(f"device {cfg.dccomms_id!r}: {e}", cfg.mac.line or cfg.line) from None
+    modem.attach_mac(mac)
     return modem

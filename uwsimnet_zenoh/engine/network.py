@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 from typing import Any
 
+from ..kernel.frame import Frame
 from ..kernel.scheduler import Scheduler
 from ..mobility.trajectory import PoseTable, Trajectory
 from ..phy.channel import Channel
@@ -37,7 +38,10 @@ class Network:
             c.id: Channel(c.id, c.prop_s_per_m, c.min_prop_s, self.sched, self.poses, self.tracer,
                           **channel_options(c))
             for c in scene.channels}
+        self.end: dict[str, Any] | None = None
+        """The trace's `end` record once the run ended early or in realtime (see `end_record`)."""
         self.modems: dict[str, Modem] = {}
+        self._gone: dict[str, Modem] = {}       # removed modems: their frames may still be on air
         for v, d in scene.devices():
             self.add_device(v.name, d)
         self.flows: list[FlowSource] = []
@@ -84,6 +88,7 @@ class Network:
         m = self.modems.pop(dccomms_id, None)
         if m is None:
             raise ValueError(f"no device {dccomms_id!r}")
+        self._gone[dccomms_id] = m
         m.close()
         for f in self.flows:                 # its scene flows end with it
             if f.modem is m:
@@ -95,6 +100,53 @@ class Network:
         self.poses.update(vehicle, self.now if t is None else t, p, v)
 
     # -- running ------------------------------------------------------------------------------
+    def stop(self, reason: str = "stopped") -> int:
+        """End the run now (a signal, an error): every data frame that has no outcome at its transmitter
+        yet ends with a drop `reason` there, so the trace accounts for every frame (docs/trace-format.md).
+
+        Frames the transmitter still holds (its FIFO, its MAC's current frame) are dropped through the
+        modem (trace record and `dropped` status to the application); frames already handed on (on air,
+        in reception, waiting for delivery: found in the pending events) get the trace record only,
+        since their sender has had its final status.  Nothing runs afterwards.  Returns the count."""
+        held: dict[int, tuple[Modem | None, Frame]] = {}
+        for m in self.modems.values():
+            for f in m.fifo:
+                held[id(f)] = (m, f)
+            cur = getattr(m.mac, "cur", None)
+            if isinstance(cur, Frame):
+                held[id(cur)] = (m, cur)
+        for ev in self.sched.pending():
+            for a in ev.args:
+                if not isinstance(a, Frame):
+                    a = getattr(a, "frame", None)       # the channel's Transmission (a reception pending)
+                if isinstance(a, Frame):
+                    held.setdefault(id(a), (None, a))
+        now = self.sched.now
+        n = 0
+        for m, f in sorted(held.values(), key=lambda mf: (mf[1].dev, mf[1].seq)):
+            if f.kind != "data" or f.final is not None:
+                continue
+            n += 1
+            if m is not None:
+                m.drop(f, reason)
+                continue
+            sender = self.modems.get(f.dev) or self._gone.get(f.dev)
+            if sender is not None:
+                f.final = reason
+                self.tracer.emit(now, "drop", sender.tx_channel.id, sender.id, f, reason,
+                                 fifo=sender.fifo_bytes)
+        for m in self.modems.values():
+            m.fifo.clear()
+            m.fifo_bytes = 0
+        self.sched.clear()
+        return n
+
+    def end_record(self, reason: str, **extra: Any) -> dict[str, Any]:
+        """The trace's last line when a run ends before its planned duration (or in realtime): the
+        actual end time, which `uwsimnet report` uses instead of the meta duration."""
+        self.end = {"ev": "end", "t": round(self.sched.now, 9), "reason": reason, **extra}
+        return self.end
+
     def run(self, until: float | None = None) -> None:
         """Virtual time: jump from event to event up to `until` (default: the scene's duration)."""
         self.sched.run(self.duration if until is None else until)

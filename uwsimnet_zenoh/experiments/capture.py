@@ -98,7 +98,7 @@ def run(n: int, load: float, duration: float, rule: str, seed: int = 1) -> dict:
     net = Network(scene(n, load, duration, rule, seed))
     got = [0] * (n + 2)
 
-    def count(_m, frame, _t) -> None:
+    def count(_m, frame, _t, _d) -> None:
         got[frame.src] += 1
 
     net.modems["sink"].on_receive.append(count)

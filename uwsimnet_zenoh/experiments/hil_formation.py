@@ -95,7 +95,7 @@ def simulate(mac: str, *, duration: float = DURATION, seed: int = 1) -> dict[str
                 modem.send(s.dst, PAYLOAD, data=s.data)
             sched.after(app.period, timer)
 
-        def on_rx(_modem: Any, frame: Any, _t: float) -> None:
+        def on_rx(_modem: Any, frame: Any, _t: float, _dist: float) -> None:
             for g in app.on_frame(frame.src, frame.data or b""):
                 kin[name].go([g.waypoint])
 

@@ -19,7 +19,7 @@ class Frame:
     """
 
     __slots__ = ("src", "dst", "seq", "size", "payload", "data", "flow", "kind", "t_enq", "tag", "dev",
-                 "info", "t_tx", "tries", "msg")
+                 "info", "t_tx", "tries", "msg", "final")
 
     def __init__(self, src: int, dst: int, seq: int, size: int, payload: int, *, data: bytes | None = None,
                  flow: str | None = None, kind: str = "data", t_enq: float = 0.0, tag: Any = None,
@@ -39,6 +39,8 @@ class Frame:
         self.msg = msg
         self.t_tx = -1.0
         self.tries = 0
+        self.final: str | None = None
+        """The reason of its drop at the transmitter, once dropped there (nothing more can happen to it)."""
 
     @property
     def broadcast(self) -> bool:

@@ -73,6 +73,10 @@ class RealtimeClock:
         IDLE_SLACK away: deferred work (writing trace records) goes here, out of the path between an
         event and its effect.  A hook must be short and must bound its own backlog."""
         self.errors = 0
+        self.first_error: BaseException | None = None
+        """The first exception an event, inbox item or idle hook raised (None: none did)."""
+        self.fatal: BaseException | None = None
+        """What ended the engine thread abnormally (a bug in the loop itself), else None."""
         self._late_n = 0
         self._late_sum = 0.0
         self._late_max = 0.0
@@ -167,6 +171,8 @@ class RealtimeClock:
     # -- the engine thread -----------------------------------------------------------------------
     def _fail(self, what: str, e: BaseException) -> None:
         self.errors += 1
+        if self.first_error is None:
+            self.first_error = e
         log.error("%s raised %s: %s", what, type(e).__name__, e, exc_info=e)
         if self.on_error is not None:
             try:
@@ -191,7 +197,7 @@ class RealtimeClock:
             self._late_n += 1
             try:
                 sched.step()
-            except Exception as e:  # noqa: BLE001 - the engine keeps running
+            except BaseException as e:  # noqa: BLE001 - the engine keeps running (SystemExit of a plug-in too)
                 self._fail(f"event at t={nt:.6f}", e)
 
     def _loop(self) -> None:
@@ -223,7 +229,7 @@ class RealtimeClock:
                         self._items += 1
                         try:
                             fn(*args)
-                        except Exception as e:  # noqa: BLE001 - a bad message never stops the engine
+                        except BaseException as e:  # noqa: BLE001 - a bad message never stops the engine
                             self._fail(f"{getattr(fn, '__qualname__', fn)}", e)
                 # 2. events due now
                 now = self.now()
@@ -243,7 +249,7 @@ class RealtimeClock:
                     for hook in self.idle_hooks:
                         try:
                             hook()
-                        except Exception as e:  # noqa: BLE001 - the engine keeps running
+                        except BaseException as e:  # noqa: BLE001 - the engine keeps running (SystemExit of a plug-in too)
                             self._fail(f"idle hook {getattr(hook, '__qualname__', hook)}", e)
                 with cond:
                     if inbox or self._stopping:
@@ -265,6 +271,9 @@ class RealtimeClock:
                 while pc() < target and not inbox and not self._stopping:
                     if yield_cpu:
                         sched_yield()
+        except BaseException as e:  # noqa: BLE001 - said, and kept for the caller (never a silent end)
+            self.fatal = e
+            log.critical("the engine thread ended: %s: %s", type(e).__name__, e, exc_info=e)
         finally:
             self.done.set()
 

@@ -27,6 +27,31 @@ class Event:
         self.cancelled = True
 
 
+class Interrupted(Exception):  # noqa: N818 - it is what happened, not an error
+    """Raised out of `Scheduler.run` when `interrupt()` was called: between two events, never inside one."""
+
+
+class _Interrupt(Event):
+    """The event `interrupt()` pushes: reading its `cancelled` (the first thing `run` does with an event it
+    pops, before touching `now`) raises Interrupted, so an interrupt costs the other events nothing and
+    time never goes back, even when the signal came between a pop and the event's `now`."""
+
+    __slots__ = ()
+
+    def __init__(self, t: float) -> None:
+        self.t = t
+        self.fn = _never
+        self.args = ()
+
+    @property  # type: ignore[override]
+    def cancelled(self) -> bool:
+        raise Interrupted
+
+
+def _never() -> None:
+    raise Interrupted
+
+
 class Scheduler:
     def __init__(self) -> None:
         self.now = 0.0
@@ -62,17 +87,34 @@ class Scheduler:
         self.events_run += 1
         ev.fn(*ev.args)
 
+    def interrupt(self) -> None:
+        """Make `run` raise `Interrupted` before the next event (safe from a signal handler: one heap
+        push, ordered before every event due at `now`, with a sequence number no `at` uses)."""
+        heapq.heappush(self._heap, (self.now, -1, _Interrupt(self.now)))
+
     def run(self, until: float) -> None:
-        """Virtual time: run every event with t <= until, then stand at `until`."""
+        """Virtual time: run every event with t <= until, then stand at `until` (see `interrupt`)."""
         heap = self._heap
         pop = heapq.heappop
         n = 0
-        while heap and heap[0][0] <= until:
-            t, _, ev = pop(heap)
-            if ev.cancelled:
-                continue
-            self.now = t
-            n += 1
-            ev.fn(*ev.args)
+        try:
+            while heap and heap[0][0] <= until:
+                t, _, ev = pop(heap)
+                if ev.cancelled:
+                    continue
+                self.now = t
+                n += 1
+                ev.fn(*ev.args)
+        except Interrupted:
+            self.events_run += n
+            raise
         self.events_run += n
         self.now = max(self.now, until)
+
+    def clear(self) -> None:
+        """Forget every scheduled event (a run that has ended)."""
+        self._heap.clear()
+
+    def pending(self) -> list[Event]:
+        """The live events still scheduled, in no particular order (for ending a run: what is held)."""
+        return [ev for _, _, ev in self._heap if not isinstance(ev, _Interrupt) and not ev.cancelled]

@@ -23,7 +23,8 @@ if TYPE_CHECKING:
     from ..trace.events import Tracer
     from .channel import Channel
 
-RxCallback = Callable[["Modem", Frame, float], None]
+RxCallback = Callable[["Modem", Frame, float, float], None]
+"""(modem, frame, t, dist): a frame delivered at `t`, `dist` m from its transmitter at transmission start."""
 StatusCallback = Callable[["Modem", Frame, str, "str | None", float], None]
 
 
@@ -99,9 +100,6 @@ class Modem:
         self._seq = 0
         self._last_delivery = 0.0
         self._rx_dist = 0.0
-        self.rx_dist = 0.0
-        """Distance (m, at transmission start) of the frame being handed to `on_receive`: what its trace
-        `rx` record carries; valid during the callbacks."""
         self.loss_random = random.Random(seeds("loss", self.id)).random
         self._jitter = random.Random(seeds("jitter", self.id))
         self.random = random.Random(seeds("mac", self.id)).random
@@ -233,16 +231,16 @@ class Modem:
     def _deliver(self, frame: Frame, dist: float) -> None:
         now = self.sched.now
         self.counters["rx"] += 1
-        self.rx_dist = dist
         # a frame for another address handed up anyway (no MAC: the original's implicit broadcast)
         implicit = frame.dst != BROADCAST and frame.dst != self.address
         self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist, implicit=implicit)
         for cb in self.on_receive:
-            cb(self, frame, now)
+            cb(self, frame, now, dist)
 
     def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
         """Give `frame` up: traced `drop` with `reason`, and its final status `event` (`dropped`; a MAC
         that gave up after its retries says `failed`)."""
+        frame.final = reason
         self.counters["drop"] += 1
         self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason,
                          fifo=self.fifo_bytes)

@@ -59,7 +59,10 @@ class Channel(_Model):
 
 
 class Device(_Model):
-    """`CustomCommsDevice`: a modem on a vehicle."""
+    """`CustomCommsDevice`: a modem on a vehicle.  The same checks hold for a scene file and for a device
+    added at runtime (control `add_device`): finite numbers, minimum distance not above the maximum."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     dccomms_id: str
     address: int = Field(ge=0, le=65535)
@@ -106,6 +109,13 @@ class Device(_Model):
         if a == BROADCAST:
             raise ValueError("address 255 is the broadcast address")
         return a
+
+    @model_validator(mode="after")
+    def _distances(self) -> Device:
+        if self.min_distance > self.max_distance:
+            raise ValueError(f"min_distance {self.min_distance:g} is larger than max_distance"
+                             f" {self.max_distance:g}")
+        return self
 
     @property
     def half_duplex(self) -> bool:

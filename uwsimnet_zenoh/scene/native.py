@@ -2,15 +2,27 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+from collections.abc import Mapping, Sequence
 
 from ..phy.framing import builder
 from .model import (
     BROADCAST,
     Device,
     Flow,
+    Simulation,
 )
 from .xml import XmlReader, _El, _Fields
+
+MIN_FLOW_INTERVAL = 1e-6
+"""s: a flow's (mean) interval below this is refused: the run could not finish (at 1e-12 s simulated
+time stops advancing; the trace grows without end)."""
+MAX_FLOW_FRAMES = 10_000_000
+"""Frames all flows together may offer over the run (duration, or each flow's stop): a bound on what
+a run can finish (about 5 events and a few trace lines per frame)."""
+MAX_FLOW_RATE = 100_000.0
+"""frames per simulated second all flows together may offer (a run with no end, e.g. realtime until
+Ctrl-C, is bounded by this alone)."""
 
 
 class NativeVocabulary(XmlReader):
@@ -58,6 +70,34 @@ class NativeVocabulary(XmlReader):
             self.fail(k.get("stop"), f"stop: must be after start (stop {f.where['stop'].raw}, start {start})")
         return self.build(Flow, el, f), els
 
+    def check_flow_load(self, flows: Sequence[Flow], els: Sequence[_El], sim: Simulation) -> None:
+        """Flows whose event rate a run cannot finish (the bounds above), at the flow's interval/rate."""
+        end = sim.duration
+        if end is None:       # Scene.end_time without a duration: the last flow stop, else 60 s (+1)
+            stops = [f.stop for f in flows if f.stop is not None]
+            end = max(stops, default=60.0) + 1.0
+        rate = 0.0
+        frames = 0.0
+        worst: tuple[float, int] = (-1.0, 0)
+        for i, f in enumerate(flows):
+            if f.interval < MIN_FLOW_INTERVAL or not math.isfinite(end + f.interval) or end + f.interval == end:
+                self.fail(els[i], f"flow {f.name!r}: interval {f.interval:g} s is below the bound of"
+                                  f" {MIN_FLOW_INTERVAL:g} s: a run could not finish")
+            stop = end if f.stop is None else min(f.stop, end)
+            n = max(0.0, stop - f.start) / f.interval
+            rate += 1.0 / f.interval
+            frames += n
+            if n > worst[0]:
+                worst = (n, i)
+            if rate > MAX_FLOW_RATE:
+                self.fail(els[i], f"flow {f.name!r}: the flows offer {rate:.6g} frames/s in all, above the"
+                                  f" bound of {MAX_FLOW_RATE:g}/s: a run could not keep up")
+        if frames > MAX_FLOW_FRAMES:
+            f = flows[worst[1]]
+            self.fail(els[worst[1]], f"flow {f.name!r}: the flows offer {frames:.6g} frames over the run"
+                                     f" ({end:g} s), above the bound of {MAX_FLOW_FRAMES:g}: a run could"
+                                     " not finish (shorten the duration or lengthen the intervals)")
+
     def check_flow(self, flow: Flow, els: dict[str, _El],
                    devices: Mapping[str, tuple[Device, dict[str, _El]]]) -> None:
         if flow.src not in devices:
@@ -76,6 +116,9 @@ class NativeVocabulary(XmlReader):
             head += f" + headerBytes {dev.header_bytes} = {on_air}" if dev.header_bytes else ""
             self.fail(els["size"], f"size: {flow.size}{head} bytes exceeds maxFrameBytes"
                                    f" {dev.max_frame_bytes} of device {dev.dccomms_id!r}")
+        if flow.dst == dev.address:
+            self.fail(els["dst"], f"dst: {flow.dst} is the address of the flow's own device {dev.dccomms_id!r}"
+                                  " (a frame to itself would be sent and never get an outcome)")
         if flow.dst != BROADCAST:
             cache = getattr(self, "_listening", None)     # (rx channel, address) of every device, built once
             if cache is None or cache[0] is not devices or cache[1] != len(devices):

@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib
 import io
 import json
+import logging
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -30,6 +31,7 @@ from ..kernel.frame import Frame
 Record = dict[str, Any]
 EventListener = Callable[[float, str, int, str, Frame, "str | None", "int | None", "float | None", bool], None]
 _EVENTS = ("enq", "tx", "rx", "drop")
+log = logging.getLogger("uwsimnet.trace")
 
 
 class Tracer:
@@ -249,15 +251,32 @@ class ArrowSink:
 
 
 class CallbackSink:
-    """Calls `on_enq/on_tx/on_rx/on_drop(record)` on a user object (the `netTracingScript` class)."""
+    """Calls `on_enq/on_tx/on_rx/on_drop(record)` on a user object (the `netTracingScript` class).
 
-    def __init__(self, obj: Any) -> None:
+    A handler that raises (anything, `SystemExit` included) is reported once in the log with its
+    traceback and the plug-in is disabled for the rest of the run: the run itself, and the frame whose
+    record it was handed, go on.  `failed` then holds the exception and `failed_at` the record's time;
+    the run functions end such a run with exit code 2 (docs/runtime.md)."""
+
+    def __init__(self, obj: Any, name: str | None = None) -> None:
         self._handlers = {ev: getattr(obj, f"on_{ev}", None) for ev in _EVENTS}
+        self.name = name or type(obj).__name__
+        self.failed: BaseException | None = None
+        self.failed_at: float | None = None
 
     def __call__(self, rec: Record) -> None:
         h = self._handlers.get(rec["ev"])
         if h is not None:
-            h(rec)
+            try:
+                h(rec)
+            except (KeyboardInterrupt, GeneratorExit):
+                raise
+            except BaseException as e:  # noqa: BLE001 - user code: reported once, then switched off
+                self._handlers = {}
+                self.failed = e
+                self.failed_at = rec.get("t")
+                log.error("tracing class %s raised %s in on_%s at t=%s; it is disabled for the rest of the"
+                          " run", self.name, type(e).__name__, rec["ev"], rec.get("t"), exc_info=e)
 
 
 def load_tracing_class(spec: str) -> Any:
@@ -267,7 +286,15 @@ def load_tracing_class(spec: str) -> Any:
         raise ValueError(f"tracing class must be 'module:Class', got {spec!r}")
     try:
         cls = getattr(importlib.import_module(mod_name), cls_name)
-    except (ImportError, AttributeError) as e:
-        raise ValueError(f"cannot load tracing class {spec!r}: {e}") from None
-    return cls()
+    except (Exception, SystemExit) as e:  # noqa: BLE001 - importing user code: any failure is one line
+        raise ValueError(f"cannot load tracing class {spec!r}: {type(e).__name__}: {e}") from None
+    if not isinstance(cls, type):
+        raise ValueError(f"tracing class {spec!r} is not a class")
+    handlers = [f"on_{ev}" for ev in _EVENTS if callable(getattr(cls, f"on_{ev}", None))]
+    if not handlers:
+        raise ValueError(f"tracing class {spec!r} implements none of on_enq, on_tx, on_rx, on_drop")
+    try:
+        return cls()
+    except (Exception, SystemExit) as e:  # noqa: BLE001
+        raise ValueError(f"tracing class {spec!r} could not be created: {type(e).__name__}: {e}") from None
 

@@ -1,0 +1,110 @@
+"""A stopped app costs only itself, over real Zenoh (#11, #21): a process subscribed to a busy modem's rx is
+SIGSTOPped while two other apps exchange frames through the same broker.
+
+Before the edge, the broker's engine thread made the rx puts itself with BLOCK congestion control: once
+the stopped subscriber's buffers were full every put waited up to 5 s (Zenoh's wait_before_close) and every
+modem with it (an unrelated app's frames took 4.9 s and over 8 s instead of 69 ms).  Now the busy modem's
+outbox fills and its losses are counted on its `info` ("edge") and in the run summary; the pair's frames
+keep their modelled delay.  Bound: 50 ms (tests/test_broker_e2e.py's WALL_SLACK; the bench's p99 is ~1 ms
+on a quiet machine, this one has 2 shared cores and a 1 MB/s flood running): far below the stall it
+guards against, which lasts as long as the consumer is stopped."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from test_broker_e2e import (  # noqa: F401 - procs is a fixture
+    WALL_SLACK,
+    App,
+    Broker,
+    Proc,
+    device_xml,
+    modelled,
+    procs,
+    scene_xml,
+    vehicle_xml,
+)
+
+pytest.importorskip("uwsimnet_gli")
+
+STALLED = """
+import json, sys, time
+import zenoh
+ep, key = sys.argv[1], sys.argv[2]
+conf = zenoh.Config()
+conf.insert_json5("mode", '"client"')
+conf.insert_json5("connect/endpoints", json.dumps([ep]))
+n = [0]
+with zenoh.open(conf) as s:
+    sub = s.declare_subscriber(key, lambda sample: n.__setitem__(0, n[0] + 1))
+    print("ready", flush=True)
+    while True:
+        time.sleep(0.2)
+        print(n[0], flush=True)
+"""
+
+
+def _fast_device(dev: str, mac: int) -> str:
+    return f"""<CustomCommsDevice><dccommsId>{dev}</dccommsId><mac>{mac}</mac><txChannelId>1</txChannelId>
+      <rxChannelId>1</rxChannelId><bitrate>20000000</bitrate><txFifoSize>100000</txFifoSize>
+      <maxDistance>2000</maxDistance></CustomCommsDevice>"""
+
+
+def test_a_stopped_subscriber_costs_only_its_modem(tmp_path, procs):  # noqa: F811
+    world = "stall"
+    scene = tmp_path / "stall.xml"
+    flood = ("<flow><name>flood</name><src>src-m</src><dst>4</dst><size>2000</size><interval>0.002</interval>"
+             "</flow>")                       # 1 MB/s of rx for busy-m's subscribers
+    scene.write_text(scene_xml(world=world, channels=(0, 1), flows=flood, vehicles="".join([
+        vehicle_xml("a", (0, 0, 0), device_xml("a-m", 1)),
+        vehicle_xml("b", (300, 0, 0), device_xml("b-m", 2)),
+        vehicle_xml("s", (0, 0, 10), _fast_device("src-m", 3)),
+        vehicle_xml("busy", (0, 10, 10), _fast_device("busy-m", 4)),
+    ])))
+    b = Broker(scene, tmp_path / "t.jsonl")
+    procs.append(b)
+    script = tmp_path / "stalled.py"
+    script.write_text(STALLED)
+    stalled = Proc([sys.executable, str(script), b.endpoint, f"uwsimnet/{world}/modem/busy-m/rx"])
+    procs.append(stalled)
+    assert stalled.next_line(15).strip() == "ready"
+    deadline = time.monotonic() + 10
+    while int(stalled.next_line(5)) < 200:          # it does receive the flood
+        assert time.monotonic() < deadline
+    app = App(b.endpoint, world)
+    procs.append(app)
+    for m in ("a-m", "b-m"):
+        assert app.call(cmd="modem", id=m)["kind"] == "sim"
+    info = app.call(cmd="info", id="b-m")
+
+    stalled.p.send_signal(signal.SIGSTOP)
+    try:
+        time.sleep(2.0)                             # its buffers fill; the broker's puts to it block
+        sends = []
+        for i in range(10):
+            sends.append(app.call(cmd="send", id="a-m", dst=2, data_hex=bytes([i]).hex() * 20))
+            time.sleep(0.4)
+        frames = app.call(cmd="recv", id="b-m", n=10, timeout=15)["frames"]
+        busy = app.call(cmd="info", id="busy-m")
+    finally:
+        stalled.p.send_signal(signal.SIGCONT)
+    assert [bytes.fromhex(f["data_hex"]) for f in frames] == [bytes([i]) * 20 for i in range(10)]
+    want = modelled(300, 20, info) + 0.001          # + the intrinsic tx delay
+    late = [f["wall"] - s["wall"] - want for f, s in zip(frames, sends, strict=True)]
+    assert max(abs(x) for x in late) < WALL_SLACK, late
+    # the stopped consumer's losses: counted on busy-m's info, none on the pair's
+    assert busy["edge"]["dropped"].get("rx", 0) > 0, busy["edge"]
+    assert busy["edge"]["queued"] <= busy["edge"]["capacity"]
+    assert app.call(cmd="info", id="b-m")["edge"]["dropped"] == {}
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        stalled.stop(signal.SIGKILL, timeout=5)
+    procs.remove(stalled)
+    assert b.stop(signal.SIGINT) == 0, b.output()
+    out = b.output()
+    assert "lost at the edge: busy-m:" in out and "rx" in out.split("lost at the edge: busy-m:")[1].splitlines()[0]
+    assert "Traceback" not in out

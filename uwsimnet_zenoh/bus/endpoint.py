@@ -1,0 +1,67 @@
+"""A modem's output on its Zenoh keys, written once for simulated and real modems.
+
+`ModemEndpoint` holds the `modem/<id>/rx` and `modem/<id>/status` publishers and the modem's outbox
+(bus/outbox.py): `rx(...)` and `status(...)` encode with the one wire (uwsimnet_gli.wire) and queue the
+put, never waiting.  The broker serves its simulated modems through it (bus/broker.py) and the driver
+host its real ones (drivers/zenoh_host.py), so both publish with the same congestion control, the same
+message shapes and the same accounting of what a slow consumer lost (`stats()`, on `info` as `edge`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Any
+
+import zenoh
+from uwsimnet_gli import wire
+from uwsimnet_gli.wire import Keys
+
+from .outbox import OUTBOX_CAPACITY, Outbox
+
+BLOCK = zenoh.CongestionControl.BLOCK
+"""rx frames and status events wait for room rather than being dropped by Zenoh: both come at modem rates,
+and with *drop* Zenoh gives up after `wait_before_drop` (1 ms) without a free batch, which a loaded machine
+hits (the app then missed frames the trace says it received).  *Block* waits at most `wait_before_close`
+(5 s), on the outbox's thread, never on the engine's or a driver's: what a stuck consumer costs is that
+modem's outbox filling up, counted."""
+
+
+class ModemEndpoint:
+    __slots__ = ("id", "rx_pub", "status_pub", "out")
+
+    def __init__(self, session: zenoh.Session, keys: Keys, dev: str, out: Outbox | None = None,
+                 capacity: int = OUTBOX_CAPACITY) -> None:
+        self.id = dev
+        self.rx_pub = session.declare_publisher(keys.rx(dev), congestion_control=BLOCK, express=True)
+        self.status_pub = session.declare_publisher(keys.status(dev), congestion_control=BLOCK, express=True)
+        self.out = out if out is not None else Outbox(dev, capacity)
+
+    def rx(self, src: int, dst: int, data: bytes, seq: int, t_tx: float, t_rx: float,
+           dist: float | None = None, msg: dict[str, Any] | None = None) -> bool:
+        """Queue an rx message; False if it was lost at the edge (counted in `out.dropped["rx"]`)."""
+        return self.out.put(self.rx_pub.put, wire.encode_rx(src, dst, data, seq, t_tx, t_rx, dist, msg), "rx")
+
+    def status(self, tag: Any, event: str, reason: str | None, t: float, seq: int | None = None) -> bool:
+        """Queue a status message (a non-int tag goes as nil); False if lost at the edge."""
+        if not isinstance(tag, int) or isinstance(tag, bool):
+            tag = None
+        return self.out.put(self.status_pub.put, wire.encode_status(tag, event, reason, t, seq), "status")
+
+    def stats(self) -> dict[str, Any]:
+        return self.out.stats()
+
+    def undeclare_after_queued(self) -> None:
+        """Undeclare the publishers once what is queued for them has gone (the outbox stays usable)."""
+        for p in (self.rx_pub, self.status_pub):
+            self.out.put(_undeclare, p, "undeclare")
+
+    def close(self, timeout: float = 1.0) -> None:
+        """Let what is queued go out (up to `timeout` s), then undeclare."""
+        self.out.close(timeout)
+        for p in (self.rx_pub, self.status_pub):
+            _undeclare(p)
+
+
+def _undeclare(e: Any) -> None:
+    with contextlib.suppress(Exception):          # closing anyway
+        e.undeclare()

@@ -1,0 +1,180 @@
+"""The edge between the engine thread and Zenoh: bounded, non-blocking hand-offs both ways.
+
+Out (`Outbox`): the engine thread never makes a Zenoh put.  What a modem publishes (rx frames, status
+events) is appended to that modem's outbox and a publisher thread of the outbox makes the puts; trace
+records and the periodic publications (poses, clock) have outboxes of their own.  `put()` never waits
+beyond a short lock: when an outbox is full (its consumer, or the link to it, cannot keep up: a stopped
+app subscribed with BLOCK congestion control holds a put up to Zenoh's `wait_before_close`) the message
+is dropped at the edge and counted (`dropped`, by kind), and the count is reported on the modem's
+`info`, in the run summary and in a (rate-limited) warning: never silently.  Each outbox has its own
+thread, so a stuck put costs only the modem (or trace channel) it serves.
+
+In (`Lane`): tx messages from applications wait in a bounded FIFO per modem, and the engine takes them
+round-robin, one message of a modem per inbox item: a flood on one modem fills its own lane (and its
+own transmit FIFO) while the messages of the other modems keep their place.  The lane also measures
+the ingress delay: wall time from the Zenoh callback to the engine handling the message.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from typing import Any
+
+log = logging.getLogger("uwsimnet.bus.outbox")
+_sleep = time.sleep
+
+OUTBOX_CAPACITY = 1024
+"""Messages an outbox holds before it drops (per modem: rx and status together)."""
+LANE_CAPACITY = 1024
+"""tx messages a modem's ingress lane holds before it refuses (status dropped, reason fifo)."""
+INGRESS_WARN_S = 0.050
+"""Ingress delay (wall s, put to engine) above which the broker warns (rate-limited)."""
+
+
+class Outbox:
+    """A bounded FIFO of `(fn, arg)` calls made by a thread of its own, in order (see module docstring).
+
+    `put(fn, arg, kind)` is for the engine thread (any thread, in fact): it appends and wakes the
+    thread, or drops and counts when `capacity` calls are waiting.  `close(timeout)` lets the thread
+    finish what is queued (up to `timeout` s), then ends it."""
+
+    def __init__(self, name: str, capacity: int = OUTBOX_CAPACITY, handoff: bool = True) -> None:
+        self.name = name
+        self.handoff = handoff
+        self.capacity = capacity
+        self._q: deque[tuple[Callable[[Any], Any], Any, str]] = deque()
+        self._cond = threading.Condition(threading.Lock())
+        self._closing = False
+        self.sent = 0
+        self.failed = 0
+        self.dropped: Counter[str] = Counter()
+        """Messages refused because the outbox was full, by kind (rx, status, trace, ...)."""
+        self.high_water = 0
+        self._thread = threading.Thread(target=self._run, name=f"uwsimnet-out-{name}", daemon=True)
+        self._thread.start()
+
+    def put(self, fn: Callable[[Any], Any], arg: Any, kind: str = "msg") -> bool:
+        """Queue `fn(arg)`; False (and counted) if the outbox is full or closed.  Never blocks."""
+        with self._cond:
+            q = self._q
+            if self._closing or len(q) >= self.capacity:
+                self.dropped[kind] += 1
+                return False
+            q.append((fn, arg, kind))
+            n = len(q)
+            if n > self.high_water:
+                self.high_water = n
+            if n == 1:
+                self._cond.notify()
+        if n == 1 and self.handoff:
+            _sleep(0)       # let the woken thread take the interpreter now: the put leaves at once, not
+            #                 when the engine next waits (measured: ~0.3 ms less per frame, bench_realtime)
+        return True
+
+    def __len__(self) -> int:
+        return len(self._q)
+
+    def stats(self) -> dict[str, Any]:
+        return {"queued": len(self._q), "sent": self.sent, "failed": self.failed,
+                "dropped": dict(self.dropped), "high_water": self.high_water, "capacity": self.capacity}
+
+    def _run(self) -> None:
+        q = self._q
+        cond = self._cond
+        while True:
+            with cond:
+                while not q and not self._closing:
+                    cond.wait()
+                if not q:
+                    return
+                fn, arg, kind = q.popleft()
+            try:
+                fn(arg)
+                self.sent += 1
+            except Exception as e:  # noqa: BLE001 - a put that fails costs only itself
+                self.failed += 1
+                log.debug("%s: %s put failed: %s", self.name, kind, e)
+
+    def close(self, timeout: float = 1.0) -> bool:
+        """Stop taking calls, let the queued ones go out (up to `timeout` s); True if all went."""
+        with self._cond:
+            self._closing = True
+            self._cond.notify()
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            with self._cond:
+                left = len(self._q)
+                for _, _, kind in self._q:
+                    self.dropped[kind] += 1
+                self._q.clear()
+            log.warning("%s: %d message(s) not sent at close (a consumer does not read)", self.name, left)
+            return False
+        return True
+
+
+class Lane:
+    """One modem's ingress: a bounded FIFO of (wall time, item) and the delay statistics.
+
+    The Zenoh thread calls `offer(item)`: True if the engine must be woken for this lane (it was idle),
+    False if it is already scheduled; None if the lane is full (the caller refuses the message).  The
+    engine calls `take()` for one item and `done_one()` to learn whether to schedule itself again."""
+
+    __slots__ = ("name", "capacity", "_q", "_lock", "scheduled", "refused", "n", "delay_sum", "delay_max",
+                 "_pc")
+
+    def __init__(self, name: str, capacity: int = LANE_CAPACITY,
+                 perf_counter: Callable[[], float] = time.perf_counter) -> None:
+        self.name = name
+        self.capacity = capacity
+        self._q: deque[tuple[float, Any]] = deque()
+        self._lock = threading.Lock()
+        self.scheduled = False
+        self.refused = 0
+        self.n = 0
+        self.delay_sum = 0.0
+        self.delay_max = 0.0
+        self._pc = perf_counter
+
+    def offer(self, item: Any) -> bool | None:
+        with self._lock:
+            if len(self._q) >= self.capacity:
+                self.refused += 1
+                return None
+            self._q.append((self._pc(), item))
+            if self.scheduled:
+                return False
+            self.scheduled = True
+            return True
+
+    def take(self) -> tuple[float, Any] | None:
+        """The oldest item and its ingress delay (wall s), measured now; None if empty."""
+        with self._lock:
+            if not self._q:
+                self.scheduled = False
+                return None
+            t0, item = self._q.popleft()
+        d = self._pc() - t0
+        self.n += 1
+        self.delay_sum += d
+        if d > self.delay_max:
+            self.delay_max = d
+        return d, item
+
+    def more(self) -> bool:
+        """After a `take`: True if items remain (the lane stays scheduled), else it goes idle."""
+        with self._lock:
+            if self._q:
+                return True
+            self.scheduled = False
+            return False
+
+    def __len__(self) -> int:
+        return len(self._q)
+
+    def stats(self) -> dict[str, Any]:
+        return {"n": self.n, "mean": self.delay_sum / self.n if self.n else 0.0, "max": self.delay_max,
+                "queued": len(self._q), "refused": self.refused, "capacity": self.capacity}
