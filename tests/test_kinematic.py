@@ -117,8 +117,13 @@ def test_vehicles_follow_the_world_clock_speed_and_pause(tmp_path: Path):
                 p = w.control("state")["vehicles"]["k"]["p"]
                 return math.nan if p is None else p[0]
 
-            w.session.put(f"uwsimnet/{WORLD}/vehicle/k/cmd", msgpack.packb({"v": [1, 0, 0]}))    # 1 m/s
-            time.sleep(0.3)
+            # 1 m/s; a put made before the vehicles' subscription reached the router is routed nowhere, so
+            # the command is repeated until k moves (a command is idempotent), then the speed is measured
+            deadline = time.monotonic() + 20
+            while not x() > 0:
+                assert time.monotonic() < deadline, "k never moved on its velocity command"
+                w.session.put(f"uwsimnet/{WORLD}/vehicle/k/cmd", msgpack.packb({"v": [1, 0, 0]}))
+                time.sleep(0.3)
             x0, t0 = x(), w.sim_time()
             time.sleep(1.0)
             x1, t1 = x(), w.sim_time()

@@ -155,7 +155,7 @@ def test_readme_real_time_block_in_order_on_fresh_ports():
         rc = s.stop()
     assert rc == 0, s.text()
     out = s.text()
-    assert "uwsimnet: stopping (signal 2)" in out and "alpha-modem" in out.split("stopping", 1)[1]
+    assert "uwsimnet: stopping (SIGINT)" in out and "alpha-modem" in out.split("stopping", 1)[1]
     assert "Traceback" not in out
 
 

@@ -448,10 +448,17 @@ def test_run_and_gli_log_in_with_client_configs(dep: Deployment, tmp_path: Path)
         listen = subprocess.Popen([*gli, "listen", "y", "--count", "1", "--timeout", str(WAIT), "--json"],
                                   cwd=ROOT, env=genv, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         try:
-            time.sleep(1.0)                                         # the subscription reaches the broker
-            send = subprocess.run([*gli, "send", "x", "2", "hello", "--wait"], cwd=ROOT, env=genv,
-                                  capture_output=True, text=True, timeout=WAIT + 10)
-            assert send.returncode == 0, send.stdout + send.stderr
+            # "Press CTRL-C" is not yet a route from the broker: a frame delivered before the subscription
+            # reached it goes nowhere, so send again until the listener (--count 1) has one
+            for _ in range(4):
+                send = subprocess.run([*gli, "send", "x", "2", "hello", "--wait"], cwd=ROOT, env=genv,
+                                      capture_output=True, text=True, timeout=WAIT + 10)
+                assert send.returncode == 0, send.stdout + send.stderr
+                try:
+                    listen.wait(timeout=5)
+                    break
+                except subprocess.TimeoutExpired:
+                    continue
             lo, le = listen.communicate(timeout=WAIT + 5)
         finally:
             if listen.poll() is None:
