@@ -5,14 +5,15 @@ Before the edge, the broker's engine thread made the rx puts itself with BLOCK c
 the stopped subscriber's buffers were full every put waited up to 5 s (Zenoh's wait_before_close) and every
 modem with it (an unrelated app's frames took 4.9 s and over 8 s instead of 69 ms).  Now the busy modem's
 outbox fills and its losses are counted on its `info` ("edge") and in the run summary; the pair's frames
-keep their modelled delay.  Bound: 50 ms (tests/test_broker_e2e.py's WALL_SLACK; the bench's p99 is ~1 ms
-on a quiet machine, this one has 2 shared cores and a 1 MB/s flood running): far below the stall it
-guards against, which lasts as long as the consumer is stopped."""
+keep their modelled delay.  Bounds: the median within 50 ms (tests/test_broker_e2e.py's WALL_SLACK; the
+bench's p99 is ~1 ms on a quiet machine, this one has 2 shared cores and a 1 MB/s flood running) and every
+frame within 1 s: far below the stall it guards against, which lasts as long as the consumer is stopped."""
 
 from __future__ import annotations
 
 import contextlib
 import signal
+import statistics
 import subprocess
 import sys
 import time
@@ -96,7 +97,11 @@ def test_a_stopped_subscriber_costs_only_its_modem(tmp_path, procs):  # noqa: F8
     assert [bytes.fromhex(f["data_hex"]) for f in frames] == [bytes([i]) * 20 for i in range(10)]
     want = modelled(300, 20, info) + 0.001          # + the intrinsic tx delay
     late = [f["wall"] - s["wall"] - want for f, s in zip(frames, sends, strict=True)]
-    assert max(abs(x) for x in late) < WALL_SLACK, late
+    # the bug this guards against made every frame of the pair ~5 s late (the broker's put blocked behind the
+    # stopped consumer); a loaded machine (load 6 on 2 cores, the flood's own CPU) delays a frame by 0.1-0.2 s
+    # now and then, so: the typical frame within the realtime slack, none anywhere near the blocked put
+    assert statistics.median(abs(x) for x in late) < WALL_SLACK, late
+    assert max(abs(x) for x in late) < 1.0, late
     # the stopped consumer's losses: counted on busy-m's info, none on the pair's
     assert busy["edge"]["dropped"].get("rx", 0) > 0, busy["edge"]
     assert busy["edge"]["queued"] <= busy["edge"]["capacity"]
