@@ -44,6 +44,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     ap.add_argument("--profile", choices=("default", "original"), default="default",
                     help="table1: 'original' = the original's framing (+10 B on DATA), 500 B FIFO, no retry limit,"
                          " unicast support/buoy (approximated with headerBytes)")
+    ap.add_argument("--traffic", choices=("paper", "control"), default=None,
+                    help="hil-formation: 'paper' (default) = the control frames plus the Sec. 3.2 image flows, as the"
+                         " paper states; 'control' = the control frames only (the lighter variant)")
+    ap.add_argument("--reading", default=None,
+                    help="phy-layer: how to read the paper's '1500 bps' (docs/paper-phy-layer.md): 'stated' (default),"
+                         " 'original-app', 'modem-1500'")
     ap.add_argument("--workers", type=int, default=1, help="twinbot --seeds: worker processes")
     ap.set_defaults(fn=run)
 
@@ -56,6 +62,10 @@ def run(a: argparse.Namespace) -> int:
     lo, hi = SPEED_RANGE
     if a.speed is not None and (a.virtual or not lo <= a.speed <= hi):
         raise UserError(f"uwsimnet experiment: --speed: a number from {lo:g} to {hi:g}, for the real-time run")
+    if a.traffic is not None and a.name != "hil-formation":
+        raise UserError("uwsimnet experiment: --traffic applies to hil-formation only")
+    if a.reading is not None and a.name != "phy-layer":
+        raise UserError("uwsimnet experiment: --reading applies to phy-layer only")
     if a.seeds is not None and a.name == "hil-formation":
         raise UserError("uwsimnet experiment: --seeds applies to phy-layer, twinbot and table1")
     out = Path(a.out or f"out/{a.name}")
@@ -66,11 +76,18 @@ def run(a: argparse.Namespace) -> int:
         table1.run(out, seeds=parse_seeds(a.seeds or "1-3"), profile=a.profile)
         print((out / "summary.md").read_text())
         return 0
-    kw: dict[str, float] = {} if a.duration is None else {"duration": a.duration}
+    kw: dict[str, object] = {} if a.duration is None else {"duration": a.duration}
     if a.speed is not None:
         kw["speed"] = a.speed
     if a.seeds is not None:
         kw["seeds"] = parse_seeds(a.seeds)
+    if a.traffic is not None:
+        kw["traffic"] = a.traffic
+    if a.reading is not None:
+        from ..experiments.phy_layer import READINGS
+        if a.reading not in READINGS:
+            raise UserError(f"uwsimnet experiment: --reading: one of {', '.join(READINGS)}, got {a.reading!r}")
+        kw["reading"] = a.reading
     if a.name == "phy-layer":
         from ..experiments import phy_layer as experiment
     elif a.name == "hil-formation" and a.virtual:

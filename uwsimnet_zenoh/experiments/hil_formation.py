@@ -27,8 +27,10 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from ..kernel.frame import BROADCAST
 from ..trace.events import finite
 from .hil_spec import (
+    DEFAULT_TRAFFIC,
     DEPTH,
     DURATION,
     MAX_ACCEL,
@@ -49,8 +51,16 @@ def delivery(records: Iterable[dict[str, Any]]) -> dict[str, float]:
     (operator -> leader), leader positions (per follower), telemetry (followers -> operator)."""
     enq: Counter[str] = Counter()
     rx: Counter[tuple[str, int]] = Counter()
+    img_enq: Counter[str] = Counter()
+    img_rx: Counter[str] = Counter()
     for r in records:
         if r.get("kind") != "data":
+            continue
+        if r.get("flow") is not None:              # a scene flow: the Sec. 3.2 image frames
+            if r.get("ev") == "enq":
+                img_enq[r["flow"]] += 1
+            elif r.get("ev") == "rx":
+                img_rx[r["flow"]] += 1
             continue
         if r.get("ev") == "enq":
             enq[r["dev"]] += 1
@@ -64,18 +74,85 @@ def delivery(records: Iterable[dict[str, Any]]) -> dict[str, float]:
         / max(1, len(followers) * enq["leader-modem"]),
         "telemetry": sum(rx[("operator-modem", VEHICLES[n][0])] for n in followers)
         / max(1, sum(enq[f"{n}-modem"] for n in followers)),
+        **({"images": sum(img_rx.values()) / max(1, sum(img_enq.values()))} if img_enq else {}),
     }
 
 
-def simulate(mac: str, *, duration: float = DURATION, seed: int = 1) -> dict[str, Any]:
+def timing(records: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """Where the leader's position frames spend their time, from the trace.  Per frame: the delay from its
+    enqueue on the leader's modem to its first reception by a follower, split into the queueing wait
+    (enqueue to the modem's first transmission for it, RTS or DATA: the frames ahead of it, an image
+    frame's ACK wait and retries), the access time (first RTS to DATA on air: RTS/CTS rounds lost and
+    backoff; 0 without a handshake) and the rest (intrinsic delay, frame on air, propagation); the share
+    of frames that waited while one of the leader's image frames went on air, and the RTS sent and DATA
+    transmissions per frame."""
+    leader = VEHICLES["leader"][0]
+    enq: dict[int, float] = {}
+    first_tx: dict[int, float] = {}
+    first_data: dict[int, float] = {}
+    data_tx: Counter[int] = Counter()
+    ctrl_tx: Counter[int] = Counter()
+    first_rx: dict[int, float] = {}
+    image_tx: list[float] = []
+    lost_at_source: Counter[str] = Counter()
+    for r in records:
+        if r.get("src") != leader:
+            continue
+        ev, dev = r.get("ev"), r.get("dev")
+        if r.get("flow") is not None:
+            if ev == "tx" and dev == "leader-modem" and r.get("kind") == "data":
+                image_tx.append(r["t"])
+            continue
+        k = r["seq"]
+        if ev == "enq" and dev == "leader-modem" and r.get("kind") == "data":
+            enq[k] = r["t"]
+        elif ev == "drop" and dev == "leader-modem" and r.get("kind") == "data":
+            lost_at_source[r.get("reason") or "?"] += 1
+        elif ev == "tx" and dev == "leader-modem" and r.get("dst") == BROADCAST:   # not its ACKs/CTSs
+            first_tx.setdefault(k, r["t"])
+            if r.get("kind") == "data":
+                first_data.setdefault(k, r["t"])
+                data_tx[k] += 1
+            else:
+                ctrl_tx[k] += 1
+        elif ev == "rx" and r.get("kind") == "data" and dev != "operator-modem":
+            first_rx.setdefault(k, r["t"])
+    got = [k for k in enq if k in first_rx and k in first_data]
+    out: dict[str, Any] = {"frames": len(enq), "delivered": len(got),
+                           "rts_per_frame": sum(ctrl_tx[k] for k in enq) / max(1, len(enq)),
+                           "data_tx_per_frame": sum(data_tx[k] for k in enq) / max(1, len(enq)),
+                           "lost_at_leader": dict(lost_at_source)}
+    if not got:
+        return out
+
+    def mean(xs: list[float]) -> float | None:
+        return sum(xs) / len(xs) if xs else None
+
+    delay = sorted(first_rx[k] - enq[k] for k in got)
+    behind = [k for k in got if any(enq[k] < t < first_tx[k] for t in image_tx)]
+    out.update({
+        "delay_mean": mean(delay), "delay_p95": delay[min(len(delay) - 1, int(0.95 * len(delay)))],
+        "delay_max": delay[-1],
+        "queue_mean": mean([first_tx[k] - enq[k] for k in got]),
+        "access_mean": mean([first_data[k] - first_tx[k] for k in got]),
+        "air_mean": mean([first_rx[k] - first_data[k] for k in got]),
+        "behind_image": len(behind) / len(got),
+        "queue_behind_image_mean": mean([first_tx[k] - enq[k] for k in behind]),
+    })
+    return out
+
+
+def simulate(mac: str, *, duration: float = DURATION, seed: int = 1, traffic: str = DEFAULT_TRAFFIC,
+             keep_trace: bool = False) -> dict[str, Any]:
     """Run the experiment on the virtual clock: the apps of hil_apps.py on the scene's modems, the
-    BlueROVs as kinematic vehicles whose poses reach the network at 10 Hz."""
+    BlueROVs as kinematic vehicles whose poses reach the network at 10 Hz; with traffic 'paper' the
+    scene's image flows run too.  `keep_trace`: the trace records in the result ('trace')."""
     from ..engine.network import Network
     from ..mobility.kinematic import KinematicVehicle
     from ..scene.load import load_scene_text
     from .hil_apps import first_due, make_app
 
-    scene = load_scene_text(scene_xml(mac))
+    scene = load_scene_text(scene_xml(mac, traffic))
     net = Network(scene, seed=seed, duration=duration)
     records: list[dict[str, Any]] = []
     net.tracer.add(records.append)
@@ -118,7 +195,10 @@ def simulate(mac: str, *, duration: float = DURATION, seed: int = 1) -> dict[str
     for name in (OPERATOR[0], *VEHICLES):
         start(name)
     net.run(duration)
-    return {"mac": mac, "t": times, "error": errors, "delivery": delivery(records)}
+    out = {"mac": mac, "t": times, "error": errors, "delivery": delivery(records), "timing": timing(records)}
+    if keep_trace:
+        out["trace"] = records
+    return out
 
 
 def window(res: dict[str, Any], t0: float) -> dict[str, Any]:
@@ -139,7 +219,12 @@ def stats(res: dict[str, Any]) -> dict[str, Any]:
         settled = [x for x, tt in zip(e, t, strict=True) if tt - max(t0 for t0, _ in WAYPOINTS if tt >= t0) >= 30]
         out[n] = {"mean": sum(e) / len(e), "max": max(e), "final": e[-1],
                   "settled_mean": (sum(settled) / len(settled)) if settled else None}
+    fol = [out[n]["mean"] for n in VEHICLES if n != "leader" and n in out]
+    if fol:
+        out["followers_mean"] = sum(fol) / len(fol)
     out["delivery"] = res["delivery"]
+    if "timing" in res:
+        out["timing"] = res["timing"]
     return out
 
 
@@ -199,26 +284,101 @@ def table(rows: dict[str, dict[str, Any]], title: str) -> list[str]:
             settled = "-" if s["settled_mean"] is None else f"{s['settled_mean']:.3f}"
             lines.append(f"| {PROTOCOLS[mac]} | {n} | {s['mean']:.3f} | {s['max']:.3f} | {settled}"
                          f" | {s['final']:.3f} |")
-    lines += ["", "| MAC | waypoints delivered | leader positions delivered (per follower) | telemetry delivered |",
-              "|---|---|---|---|"]
+    lines += ["", "| MAC | waypoints delivered | leader positions delivered (per follower) | telemetry delivered"
+                  " | image frames delivered |", "|---|---|---|---|---|"]
     for mac, st in rows.items():
         d = st["delivery"]
+        img = f"{d['images']:.1%}" if "images" in d else "-"
         lines.append(f"| {PROTOCOLS[mac]} | {d['waypoints']:.1%} | {d['leader_positions']:.1%}"
-                     f" | {d['telemetry']:.1%} |")
+                     f" | {d['telemetry']:.1%} | {img} |")
     return lines
 
 
-def run(out: Path, *, duration: float = DURATION, figure: Path | None = None) -> dict[str, Any]:
-    """The virtual-time experiment: Fig. 9 and a summary in `out` (about a second)."""
+def timing_table(rows: dict[str, dict[str, Any]]) -> list[str]:
+    """The leader positions' delay, split as `timing()` splits it (seconds), one row per MAC."""
+    lines = ["Where the leader's position frames spend their time (from the trace, `timing()`): enqueue to first"
+             " follower reception; queue = enqueue to the modem's first transmission for the frame; access ="
+             " first RTS to DATA (S-FAMA's handshake rounds); on air = DATA to reception (intrinsic delay,"
+             " frame, propagation).", "",
+             "| MAC | frames | delivered | delay mean (s) | p95 (s) | max (s) | queue (s) | access (s) | on air (s)"
+             " | waited behind an image frame | their queue (s) | RTS per frame |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+
+    def f(x: Any, fmt: str = ".3f") -> str:
+        return "-" if x is None else format(x, fmt)
+
+    for mac, t in rows.items():
+        lines.append(f"| {PROTOCOLS[mac]} | {t['frames']} | {t['delivered']} | {f(t.get('delay_mean'))}"
+                     f" | {f(t.get('delay_p95'))} | {f(t.get('delay_max'))} | {f(t.get('queue_mean'))}"
+                     f" | {f(t.get('access_mean'))} | {f(t.get('air_mean'))} | {f(t.get('behind_image'), '.0%')}"
+                     f" | {f(t.get('queue_behind_image_mean'))} | {t['rts_per_frame']:.2f} |")
+    return lines
+
+
+SEEDS = (1, 2, 3, 4, 5)
+"""The virtual-time run's seeds (CS-ALOHA's and S-FAMA's backoffs draw from them): means with 95 % t intervals."""
+
+
+def over_seeds(traffic: str, duration: float, seeds: Iterable[int] = SEEDS) -> dict[str, Any]:
+    """The followers' mean error, the leader's, and the leader positions' delay and delivery per MAC over
+    `seeds`, with 95 % t intervals, and the S-FAMA / CS-ALOHA ratio of the followers' error per seed."""
+    from ..analysis.intervals import mean_ci
+
+    per: dict[str, dict[str, list[float]]] = {mac: {} for mac in PROTOCOLS}
+    for seed in seeds:
+        for mac in PROTOCOLS:
+            st = stats(simulate(mac, duration=duration, seed=seed, traffic=traffic))
+            row = {"followers_mean": st["followers_mean"], "leader_mean": st["leader"]["mean"],
+                   "position_delay_mean": st["timing"].get("delay_mean") or float("nan"),
+                   "leader_positions": st["delivery"]["leader_positions"]}
+            for k, v in row.items():
+                per[mac].setdefault(k, []).append(v)
+    ratio = [s / a for s, a in zip(per["sfama"]["followers_mean"], per["aloha"]["followers_mean"], strict=True)]
+    out: dict[str, Any] = {"seeds": list(seeds), "traffic": traffic, "ratio_followers": ratio}
+    for mac, cols in per.items():
+        out[mac] = {}
+        for k, vals in cols.items():
+            ci = mean_ci(vals)
+            out[mac][k] = {"values": vals, "mean": sum(vals) / len(vals),
+                           "ci95": None if ci is None or ci.half is None else [ci.low, ci.high]}
+    return out
+
+
+def seeds_table(o: dict[str, Any]) -> list[str]:
+    def cell(d: dict[str, Any], fmt: str = ".3f") -> str:
+        ci = d["ci95"]
+        return format(d["mean"], fmt) + ("" if ci is None else f" [{ci[0]:{fmt}}, {ci[1]:{fmt}}]")
+
+    lines = [f"Over seeds {o['seeds'][0]}-{o['seeds'][-1]} (virtual time; mean [95 % t interval]):", "",
+             "| MAC | followers' mean error (m) | leader's mean error (m) | leader position delay (s)"
+             " | leader positions delivered |", "|---|---|---|---|---|"]
+    for mac in PROTOCOLS:
+        m = o[mac]
+        lines.append(f"| {PROTOCOLS[mac]} | {cell(m['followers_mean'])} | {cell(m['leader_mean'])}"
+                     f" | {cell(m['position_delay_mean'])} | {cell(m['leader_positions'], '.3f')} |")
+    r = o["ratio_followers"]
+    lines += ["", f"S-FAMA's followers' error / CS-ALOHA's, per seed: {', '.join(f'{x:.2f}' for x in r)}"
+                  f" (from {min(r):.2f} to {max(r):.2f})"]
+    return lines
+
+
+def run(out: Path, *, duration: float = DURATION, traffic: str = DEFAULT_TRAFFIC, seeds: Iterable[int] = SEEDS,
+        figure: Path | None = None) -> dict[str, Any]:
+    """The virtual-time experiment: Fig. 9 (first seed), the leader positions' timing and the errors over
+    `seeds` with intervals, in `out` (a few seconds)."""
+    seeds = list(seeds)
     out.mkdir(parents=True, exist_ok=True)
-    results = {mac: simulate(mac, duration=duration) for mac in PROTOCOLS}
+    results = {mac: simulate(mac, duration=duration, traffic=traffic, seed=seeds[0]) for mac in PROTOCOLS}
     st = {mac: stats(r) for mac, r in results.items()}
     for path in (out / "fig9-hil-formation.png", figure):
         if path is not None:
             plot(results, path)
     for mac, r in results.items():
         write_errors(r, out / f"{mac}.errors.csv")
-    lines = table(st, "HIL formation (virtual time): waypoint distance error")
+    multi = over_seeds(traffic, duration, seeds)
+    lines = table(st, f"HIL formation (virtual time, seed {seeds[0]}, traffic '{traffic}'): waypoint distance error")
+    lines += ["", *timing_table({mac: r["timing"] for mac, r in results.items()}), "", *seeds_table(multi)]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    (out / "summary.json").write_text(json.dumps(finite({"virtual": st}), indent=2, allow_nan=False))
+    (out / "summary.json").write_text(json.dumps(finite({"virtual": st, "seeds": multi, "traffic": traffic}),
+                                                 indent=2, allow_nan=False))
     return st

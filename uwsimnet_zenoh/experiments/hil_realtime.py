@@ -51,9 +51,10 @@ def _apps(*args: str) -> list[str]:
     return [PY, "-m", "uwsimnet_zenoh.experiments.hil_apps", *args]
 
 
-def start_world(procs: Processes, mac: str, endpoint: str, out: Path, duration: float, speed: float) -> str:
-    world = f"hil-formation-{mac}"
-    scene = spec.SCENES / f"hil-formation-{mac}.xml"
+def start_world(procs: Processes, mac: str, endpoint: str, out: Path, duration: float, speed: float,
+                traffic: str = spec.DEFAULT_TRAFFIC) -> str:
+    world = spec.world_name(mac, traffic)
+    scene = spec.scene_path(mac, traffic)
     procs.start(f"{mac}-broker", _uwsimnet("run", str(scene), "--clock", "realtime", "--connect", endpoint,
                                            "--duration", f"{duration + 60:g}", "--speed", f"{speed:g}",
                                            "--trace", str(out / f"{mac}.trace.jsonl")),
@@ -121,10 +122,11 @@ class Recorder:
             self._sub.undeclare()
 
 
-def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0,
+def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0, traffic: str = spec.DEFAULT_TRAFFIC,
         figure: Path | None = None) -> dict[str, Any]:
     """Run both MACs in real time (about `duration` / `speed` s plus start-up; `speed` > 1 is for runs
-    without hardware: every process follows the worlds' clocks); Fig. 9, summary.md/json in `out`."""
+    without hardware: every process follows the worlds' clocks); Fig. 9, summary.md/json in `out`.
+    `traffic`: 'paper' (control frames + the Sec. 3.2 image flows) or 'control' (hil_spec.TRAFFIC)."""
     if importlib.util.find_spec("uwsimnet_gli") is None:      # the apps are uwsimnet_gli clients
         raise UserError("hil-formation: the applications need the uwsimnet_gli client: pip install -e"
                         " gli_clients/python (make does it)")
@@ -132,7 +134,7 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0,
     with Processes(out / "logs") as procs:
         router = procs.start("router", _uwsimnet("router", "--listen", "tcp/127.0.0.1:0"), ready="listening on")
         endpoint = re.search(r"tcp/127\.0\.0\.1:\d+", router.output()).group(0)      # the port it was given
-        worlds = {mac: start_world(procs, mac, endpoint, out, duration, speed) for mac in spec.PROTOCOLS}
+        worlds = {mac: start_world(procs, mac, endpoint, out, duration, speed, traffic) for mac in spec.PROTOCOLS}
         with open_session(make_config("client", connect=[endpoint])) as session:
             rec = Recorder(session, worlds, duration)
             try:
@@ -152,17 +154,20 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0,
             raise ProcessError(f"{mac}: no vehicle poses recorded before t={duration:g} s: too short a run for"
                                " the processes to start (give --duration 10 or more)")
     for mac, r in results.items():
-        r["delivery"] = h.delivery(read_trace(out / f"{mac}.trace.jsonl")[1])
+        recs = read_trace(out / f"{mac}.trace.jsonl")[1]
+        r["delivery"], r["timing"] = h.delivery(recs), h.timing(recs)
         h.write_errors(r, out / f"{mac}.errors.csv")
     # the model over the same window as the real-time record (which starts once every pose is known)
-    model = {mac: h.window(h.simulate(mac, duration=duration), results[mac]["t"][0]) for mac in spec.PROTOCOLS}
+    model = {mac: h.window(h.simulate(mac, duration=duration, traffic=traffic), results[mac]["t"][0])
+             for mac in spec.PROTOCOLS}
     st = {mac: h.stats(r) for mac, r in results.items()}
     st_model = {mac: h.stats(r) for mac, r in model.items()}
     for path in (out / "fig9-hil-formation.png", figure):
         if path is not None:
             h.plot(results, path, model=model)
     pace = "real time" if speed == 1.0 else f"real time x{speed:g}"
-    lines = h.table(st, f"HIL formation, {pace} ({duration:g} s, separate processes over Zenoh)")
+    lines = h.table(st, f"HIL formation, {pace} ({duration:g} s, separate processes over Zenoh),"
+                        f" traffic '{traffic}'")
     lines += ["", "Virtual-time model of the same scene (dashed in the figure):", "",
               "| MAC | vehicle | mean error, real time (m) | mean error, model (m) | difference (m) |",
               "|---|---|---|---|---|"]
@@ -171,6 +176,7 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0,
             a, b = st[mac][n]["mean"], st_model[mac][n]["mean"]
             lines.append(f"| {spec.PROTOCOLS[mac]} | {n} | {a:.3f} | {b:.3f} | {a - b:+.3f} |")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    summary = {"realtime": st, "virtual": st_model, "duration": duration, "speed": speed}
+    lines += ["", *h.timing_table({mac: r["timing"] for mac, r in results.items()})]
+    summary = {"realtime": st, "virtual": st_model, "duration": duration, "speed": speed, "traffic": traffic}
     (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     return st
