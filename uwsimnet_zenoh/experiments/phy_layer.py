@@ -24,7 +24,29 @@ SCENES = Path(__file__).resolve().parents[2] / "scenes" / "paper"
 FLOW = "rov0-to-rov1"
 BACK = "rov1-to-rov0"
 BER = RateErrorModel("6e-13*m^13.7", "bit")
-SIZE = 30  # bytes on air: 22 payload + 8 DataLinkFrame
+SIZE = 30  # bytes on air: 22 payload + 8 DataLinkFrame (the 'stated' reading)
+PAPER_PEAK_S = 0.430    # "when node 1 started the transmission at 37 s the end-to-end delay rose to ~430 ms"
+
+# How to read "Both ROVs were configured to transmit at 1500 bps, which is close to the 1800 bps maximum bitrate
+# of the modems" (docs/paper-phy-layer.md): scene overrides (app/overrides.py paths) on both scenes.
+READINGS: dict[str, dict] = {
+    "stated": {
+        "what": "1500 bit/s of frames on air (22 B payload + 8 B DataLinkFrame every 0.16 s), modems at 1800 bit/s",
+        "overrides": {}},
+    "original-app": {
+        "what": "the original's application pacing: 1500 bit/s of payload (one 50 B payload every 50*8/1500 s, as"
+                " dccomms_by_examples' custom_node sleeps), VariableLength2BPacket framing (+5 B on air),"
+                " a 500 B FIFO, modems at 1800 bit/s",
+        "overrides": {"device.*.header_bytes": 5, "device.*.tx_fifo_bytes": 500,
+                      "flow.*.size": 50, "flow.*.interval": 50 * 8 / 1500}},
+    "modem-1500": {
+        "what": "the modems' bit rate configured to 1500 bit/s (of the S100's 1800 maximum), 1500 bit/s of"
+                " frames on air as in 'stated'",
+        "overrides": {"device.*.bitrate": 1500}},
+}
+DEFAULT_READING = "stated"
+PAYLOAD_SWEEP = (30, 40, 45, 50, 60)
+"""Payloads (B) tried under the original-app pacing: the paper does not state its frame size."""
 
 
 def _records(trace: Path) -> list[dict]:
@@ -33,6 +55,11 @@ def _records(trace: Path) -> list[dict]:
 
 
 EDGES = [0.0, 1.0, 2.5, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0]
+
+
+def _on_air(recs: list[dict]) -> int:
+    """The bytes on air of rov0's data frames (one size per run)."""
+    return next((r["size"] for r in recs if r.get("flow") == FLOW and r["ev"] == "tx"), SIZE)
 
 
 def _attenuation_only(recs: list[dict], t_max: float = 37.0) -> list[dict]:
@@ -46,6 +73,7 @@ def loss_over_seeds(per_seed: list[list[dict]]) -> list[dict]:
     from ..analysis.intervals import wilson
 
     pooled: dict[int, list[dict]] = {}
+    size = _on_air(per_seed[0]) if per_seed else SIZE
     for recs in per_seed:
         for r in _attenuation_only(recs):
             if r.get("reason") == "range":
@@ -58,7 +86,7 @@ def loss_over_seeds(per_seed: list[list[dict]]) -> list[dict]:
         sel = pooled[i]
         n = len(sel)
         lost = sum(1 for r in sel if r["ev"] == "drop")
-        expected = float(np.mean(BER.per(np.array([r["dist"] for r in sel]), SIZE)))
+        expected = float(np.mean(BER.per(np.array([r["dist"] for r in sel]), size)))
         lo, hi = wilson(lost, n)
         rows.append({"bin_m": f"{EDGES[i]:g}-{EDGES[i + 1]:g}", "seeds": len(per_seed), "frames": n,
                      "observed_per": lost / n, "ci95": [lo, hi], "expected_per": expected,
@@ -69,6 +97,7 @@ def loss_over_seeds(per_seed: list[list[dict]]) -> list[dict]:
 def loss_vs_distance(recs: list[dict], t_max: float = 37.0) -> list[dict]:
     """Observed PER of rov0's frames before rov1 transmits (attenuation only), by distance bin."""
     out = _attenuation_only(recs, t_max)
+    size = _on_air(recs)
     rows = []
     for lo, hi in zip(EDGES, EDGES[1:], strict=False):
         sel = [r for r in out if lo <= r["dist"] < hi and r.get("reason") != "range"]
@@ -76,7 +105,7 @@ def loss_vs_distance(recs: list[dict], t_max: float = 37.0) -> list[dict]:
             continue
         n = len(sel)
         lost = sum(1 for r in sel if r["ev"] == "drop")
-        expected = float(np.mean(BER.per(np.array([r["dist"] for r in sel]), SIZE)))
+        expected = float(np.mean(BER.per(np.array([r["dist"] for r in sel]), size)))
         sigma = math.sqrt(max(expected * (1 - expected), 1e-12) / n)
         rows.append({"bin_m": f"{lo:g}-{hi:g}", "frames": n, "observed_per": lost / n,
                      "expected_per": expected, "z": (lost / n - expected) / sigma if sigma > 0 else 0.0})
@@ -116,6 +145,42 @@ def delay_formula(scene: Scene, flow_name: str) -> Callable[[float], float]:
     return lambda d: fixed + ch.prop_s_per_m * d
 
 
+def components(recs: list[dict], scene: Scene, flows: tuple[str, ...] = (FLOW, BACK)) -> dict:
+    """Every received data frame's delay split into its parts, from the trace and the scene's figures:
+    wait (enqueue to first bit on air: the intrinsic delay, plus queueing behind the FIFO and behind a
+    reception it defers to), transmission (bytes on air * 8 / bitrate), propagation (min + per metre *
+    distance at the receiver) and the receiver's intrinsic delay.  `max_error_s`: the largest difference
+    between a frame's measured delay and the sum of its parts (the trace keeps distances to the mm)."""
+    devices = {d.dccomms_id: d for v in scene.vehicles for d in v.devices}
+    chans = {c.id: c for c in scene.channels}
+    enq = {(r["src"], r["seq"]): r for r in recs if r["ev"] == "enq" and r["kind"] == "data"}
+    tx = {}
+    for r in recs:
+        if r["ev"] == "tx" and r["kind"] == "data":
+            tx.setdefault((r["src"], r["seq"]), r)
+    rows = []
+    for r in recs:
+        if r["ev"] != "rx" or r["kind"] != "data" or r.get("flow") not in flows:
+            continue
+        k = (r["src"], r["seq"])
+        e, t = enq[k], tx[k]
+        src, dst = devices[e["dev"]], devices[r["dev"]]
+        ch = chans[t["ch"]]
+        part = {"t": r["t"], "flow": r["flow"], "delay": r["t"] - e["t"], "wait": t["t"] - e["t"],
+                "queue": t["t"] - e["t"] - src.intrinsic_tx_s, "transmission": r["size"] * 8 / src.bitrate,
+                "propagation": ch.min_prop_s + ch.prop_s_per_m * r["dist"], "rx_intrinsic": dst.intrinsic_rx_s,
+                "fifo_frames": e.get("fifo", 0) / r["size"], "dist": r["dist"]}
+        part["error"] = part["delay"] - (part["wait"] + part["transmission"] + part["propagation"]
+                                         + part["rx_intrinsic"])
+        rows.append(part)
+    enq_fifo = [r.get("fifo", 0) / r["size"] for r in recs if r["ev"] == "enq" and r["kind"] == "data"]
+    peak = max(rows, key=lambda p: p["delay"])
+    return {"frames": len(rows), "max_error_s": max(abs(p["error"]) for p in rows), "peak": peak, "rows": rows,
+            "queue_max_s": max(p["queue"] for p in rows),
+            "fifo_max_frames": max(enq_fifo) if enq_fifo else 0.0,
+            "fifo_drops": sum(1 for r in recs if r["ev"] == "drop" and r.get("reason") == "fifo")}
+
+
 def delays(recs: list[dict], scene: Scene) -> dict:
     """End-to-end delay of rov0's frames: alone (formula) and once rov1 transmits too (paper: ~430 ms)."""
     enq = {(r["src"], r["seq"]): r["t"] for r in recs if r["ev"] == "enq"}
@@ -125,28 +190,70 @@ def delays(recs: list[dict], scene: Scene) -> dict:
     after = [d for t, d, _ in pts if t >= 60]
     both = [r["t"] - enq[(r["src"], r["seq"])] for r in recs       # either flow, until the queues drain
             if r["ev"] == "rx" and r.get("flow") in (FLOW, BACK) and 37 <= r["t"] < 60]
-    formula = delay_formula(scene, FLOW)                 # alone, a frame every 0.16 s never queues
+    formula = delay_formula(scene, FLOW)                 # alone, without queueing
     formula_err = max(abs(d - formula(dist)) for d, dist in alone)
     return {"alone_min_s": min(d for d, _ in alone), "alone_max_s": max(d for d, _ in alone),
             "alone_max_formula_error_s": formula_err,
+            "formula_0_8m_s": formula(0.8), "formula_5_8m_s": formula(5.8),
             "both_mean_s": float(np.mean(both)) if both else None,
             "both_max_s": max(both) if both else None,
-            "after_mean_s": float(np.mean(after)) if after else None}
+            "after_mean_s": float(np.mean(after)) if after else None,
+            "components": {k: v for k, v in components(recs, scene).items() if k != "rows"}}
 
 
-def run(out: Path, progress: bool = True, seeds: list[int] | None = None) -> dict:
+def reading_scene(variant: str, reading: str = DEFAULT_READING, extra: dict | None = None) -> Scene:
+    """scenes/paper/phy-layer-<variant>.xml read as `reading` (READINGS), with `extra` overrides on top."""
+    from ..app.overrides import apply
+    from ..scene.load import load_scene
+
+    return apply(load_scene(SCENES / f"phy-layer-{variant}.xml"), {**READINGS[reading]["overrides"], **(extra or {})})
+
+
+def reading_row(name: str, scene: Scene) -> dict:
+    """One reading of the acoustic run: its frame, load and delays, measured and from the formulas."""
+    from ..app.api import run as run_one
+
+    recs = run_one(scene, trace=True).trace or []
+    dev = next(d for v in scene.vehicles for d in v.devices if d.dccomms_id.startswith("rov0"))
+    flow = next(f for f in scene.flows if f.name == FLOW)
+    size = flow.size + dev.header_bytes
+    t_frame = size * 8 / dev.bitrate
+    d = delays(recs, scene)
+    c = d["components"]
+    return {"reading": name, "payload": flow.size, "on_air_bytes": size, "bitrate": dev.bitrate,
+            "interval_s": flow.interval, "frame_s": t_frame, "load_per_node": t_frame / flow.interval,
+            "fifo_bytes": dev.tx_fifo_bytes, "alone_min_s": d["alone_min_s"], "alone_max_s": d["alone_max_s"],
+            "formula_0_8m_s": d["formula_0_8m_s"], "formula_5_8m_s": d["formula_5_8m_s"],
+            "alone_grows": d["alone_max_s"] > d["formula_5_8m_s"] + 1e-3,
+            "both_max_s": d["both_max_s"], "both_mean_s": d["both_mean_s"],
+            "peak_in_frames": d["both_max_s"] / t_frame, "peak": c["peak"], "fifo_max_frames": c["fifo_max_frames"],
+            "fifo_drops": c["fifo_drops"], "max_error_s": c["max_error_s"],
+            "peak_vs_paper": d["both_max_s"] / PAPER_PEAK_S - 1}
+
+
+def compare_readings() -> dict:
+    """The acoustic run under every reading, and the original-app pacing over PAYLOAD_SWEEP."""
+    rows = [reading_row(name, reading_scene("acoustic", name)) for name in READINGS]
+    sweep = [reading_row(f"original-app, {p} B", reading_scene(
+        "acoustic", "original-app", {"flow.*.size": p, "flow.*.interval": p * 8 / 1500})) for p in PAYLOAD_SWEEP]
+    return {"readings": rows, "payload_sweep": sweep}
+
+
+def run(out: Path, progress: bool = True, seeds: list[int] | None = None, reading: str = DEFAULT_READING) -> dict:
     """Run both scenes into `out`; return the summary (also written as summary.json and summary.md).
     `seeds`: also run the RF scene with each of these seeds and give the PER per distance bin pooled over
-    them, with its 95 % Wilson interval."""
+    them, with its 95 % Wilson interval.  `reading`: how the scenes read the paper's traffic (READINGS);
+    the summary also compares every reading's acoustic delays (a second of runs)."""
     from ..analysis import flow_metrics, report_json
     from ..analysis.figures import plot_trace
     from ..app.virtual import run_virtual
-    from ..scene.load import load_scene
 
+    if reading not in READINGS:
+        raise ValueError(f"reading: one of {', '.join(READINGS)}, got {reading!r}")
     out.mkdir(parents=True, exist_ok=True)
-    summary: dict = {}
+    summary: dict = {"reading": reading, "reading_what": READINGS[reading]["what"]}
     for variant in ("rf", "acoustic"):
-        scene = load_scene(SCENES / f"phy-layer-{variant}.xml")
+        scene = reading_scene(variant, reading)
         trace = out / f"{variant}.trace.jsonl"
         run_virtual(scene, seed=None, duration=None, trace_path=trace, progress=progress)
         figs = plot_trace(trace, out / variant)
@@ -160,16 +267,18 @@ def run(out: Path, progress: bool = True, seeds: list[int] | None = None) -> dic
     if seeds:
         from ..app.api import run as run_one
 
-        rf = load_scene(SCENES / "phy-layer-rf.xml")
+        rf = reading_scene("rf", reading)
         summary["rf"]["loss_over_seeds"] = loss_over_seeds([run_one(rf, seed=s, trace=True).trace or []
                                                             for s in seeds])
+    summary["compare"] = compare_readings()
     (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     (out / "summary.md").write_text(markdown(summary))
     return summary
 
 
 def markdown(s: dict) -> str:
-    lines = ["# Physical-layer experiment (paper Section 3.1)", ""]
+    lines = ["# Physical-layer experiment (paper Section 3.1)", "",
+             f"Reading '{s['reading']}': {s['reading_what']}.", ""]
     lines += ["## Loss against the BER expression (rov0 alone, before 37 s)", "",
               "| distance bin (m) | frames | observed PER | PER from 6e-13 d^13.7 | z |", "|---|---|---|---|---|"]
     for r in s["rf"]["loss_vs_distance"]:
@@ -196,5 +305,30 @@ def markdown(s: dict) -> str:
               " (the trace rounds distances to the millimetre)",
               f"- while both transmit (37-60 s, both flows): mean {d['both_mean_s'] * 1e3:.0f} ms, max"
               f" {d['both_max_s'] * 1e3:.0f} ms (paper: rose to about 430 ms)",
-              f"- after 60 s: mean {d['after_mean_s'] * 1e3:.1f} ms (paper: back to the 3.3 m values)", ""]
+              f"- after 60 s: mean {d['after_mean_s'] * 1e3:.1f} ms (paper: back to the 3.3 m values)"]
+    c = d["components"]
+    pk = c["peak"]
+    lines += [f"- every received frame ({c['frames']}): measured delay = wait + transmission + propagation within"
+              f" {c['max_error_s'] * 1e6:.2f} us",
+              f"- the peak frame ({pk['flow']}, received at {pk['t']:.2f} s, {pk['dist']:.2f} m):"
+              f" {pk['delay'] * 1e3:.1f} ms = wait {pk['wait'] * 1e3:.1f} (intrinsic"
+              f" {(pk['wait'] - pk['queue']) * 1e3:.1f} + queueing {pk['queue'] * 1e3:.1f}) + transmission"
+              f" {pk['transmission'] * 1e3:.1f} + propagation {pk['propagation'] * 1e3:.2f} ms;"
+              f" {pk['fifo_frames']:.0f} frame(s) in its FIFO when it was enqueued (itself included)",
+              f"- FIFO: at most {c['fifo_max_frames']:.0f} frame(s), {c['fifo_drops']} dropped", ""]
+    lines += ["## The acoustic delay under each reading of '1500 bps' (docs/paper-phy-layer.md)", "",
+              "transmission = bytes on air x 8 / bit rate; alone = intrinsic + transmission + distance x 0.6667 ms/m"
+              " (0.8 and 5.8 m); peak = the largest delay while both send (paper: about 430 ms).", "",
+              "| reading | bytes on air | bit rate | frame every (s) | transmission (ms) | load per node |"
+              " alone, formula (ms) | alone, measured (ms) | peak (ms) | peak / transmission | peak vs 430 ms |"
+              " FIFO max (frames) | FIFO drops |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in s["compare"]["readings"] + s["compare"]["payload_sweep"]:
+        grows = " (grows)" if r["alone_grows"] else ""
+        lines.append(f"| {r['reading']} | {r['on_air_bytes']} | {r['bitrate']:g} | {r['interval_s']:.4f} |"
+                     f" {r['frame_s'] * 1e3:.1f} | {r['load_per_node']:.3f} | {r['formula_0_8m_s'] * 1e3:.1f}-"
+                     f"{r['formula_5_8m_s'] * 1e3:.1f} | {r['alone_min_s'] * 1e3:.1f}-"
+                     f"{r['alone_max_s'] * 1e3:.1f}{grows} |"
+                     f" {r['both_max_s'] * 1e3:.0f} | {r['peak_in_frames']:.2f} | {r['peak_vs_paper']:+.0%} |"
+                     f" {r['fifo_max_frames']:.0f} | {r['fifo_drops']} |")
+    lines.append("")
     return "\n".join(lines)
