@@ -57,3 +57,29 @@ def test_formation_converges_with_both_macs(tmp_path: Path):
         assert st["delivery"]["leader_positions"] > 0.9
     # S-FAMA's handshakes delay the leader's positions: the followers lag more than with CS-ALOHA
     assert stats["sfama"]["follower1"]["mean"] > stats["aloha"]["follower1"]["mean"]
+
+
+def test_traffic_option_applies_to_hil_formation_only(tmp_path: Path):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "experiment", "phy-layer", "--traffic", "paper",
+                        "--out", str(tmp_path)], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.strip() == "uwsimnet experiment: --traffic applies to hil-formation only"
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "experiment", "hil-formation", "--virtual",
+                        "--traffic", "heavy", "--out", str(tmp_path)], capture_output=True, text=True)
+    assert r.returncode == 2 and "--traffic" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_with_the_image_flows_s_fama_lags_because_its_positions_queue():
+    """The paper traffic (docs/paper-hil.md): S-FAMA's followers are further from formation than
+    CS-ALOHA's, and the trace says why: the leader's position frames wait in its modem's queue (behind image
+    frames and their handshakes) many times longer than with CS-ALOHA; on air they take the same time."""
+    o = hil_formation.over_seeds("paper", h.DURATION, seeds=(1, 2))
+    assert all(r > 1.3 for r in o["ratio_followers"]), o["ratio_followers"]
+    for seed in (1, 2):
+        a = hil_formation.simulate("aloha", seed=seed, traffic="paper")["timing"]
+        s = hil_formation.simulate("sfama", seed=seed, traffic="paper")["timing"]
+        assert s["queue_mean"] > 3 * a["queue_mean"] and s["queue_mean"] > 0.5 * s["delay_mean"]
+        assert s["air_mean"] == pytest.approx(a["air_mean"], abs=1e-3)
+        assert s["rts_per_frame"] >= 1.0 and a["rts_per_frame"] == 0

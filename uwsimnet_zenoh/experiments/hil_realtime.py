@@ -154,7 +154,7 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0, traff
             raise ProcessError(f"{mac}: no vehicle poses recorded before t={duration:g} s: too short a run for"
                                " the processes to start (give --duration 10 or more)")
     for mac, r in results.items():
-        recs = read_trace(out / f"{mac}.trace.jsonl")[1]
+        recs = list(read_trace(out / f"{mac}.trace.jsonl")[1])
         r["delivery"], r["timing"] = h.delivery(recs), h.timing(recs)
         h.write_errors(r, out / f"{mac}.errors.csv")
     # the model over the same window as the real-time record (which starts once every pose is known)
@@ -175,8 +175,8 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0, traff
         for n in spec.VEHICLES:
             a, b = st[mac][n]["mean"], st_model[mac][n]["mean"]
             lines.append(f"| {spec.PROTOCOLS[mac]} | {n} | {a:.3f} | {b:.3f} | {a - b:+.3f} |")
-    (out / "summary.md").write_text("\n".join(lines) + "\n")
     lines += ["", *h.timing_table({mac: r["timing"] for mac, r in results.items()})]
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
     summary = {"realtime": st, "virtual": st_model, "duration": duration, "speed": speed, "traffic": traffic}
     (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     return st
