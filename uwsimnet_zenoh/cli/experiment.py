@@ -1,7 +1,8 @@
 """`uwsimnet experiment NAME [--out DIR]`: the paper's experiments with embedded defaults.
 
 hil-formation runs in real time as separate processes over Zenoh (about 4 minutes); `--virtual` runs
-its virtual-time model alone (a second)."""
+its virtual-time model alone (seeds 1-5, about 10 s); `--traffic paper|control` (default paper: the Sec. 3.2
+image flows too).  phy-layer `--reading` chooses how the paper's '1500 bps' is read (default stated)."""
 
 from __future__ import annotations
 
