@@ -42,8 +42,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                                     " twinbot: the three MACs over these seeds with 95 %% intervals;"
                                     " table1: the saturation search over these seeds (default 1-3)")
     ap.add_argument("--profile", choices=("default", "original"), default="default",
-                    help="table1: 'original' = the original's framing (+10 B on DATA), 500 B FIFO, no retry limit,"
-                         " unicast support/buoy (approximated with headerBytes)")
+                    help="twinbot, table1: 'original' = the original experiment's set-up: framing and Aqua-Sim's"
+                         " MAC header (+10 B on DATA, headerBytes), 500 B FIFO, no retry limit, unicast"
+                         " support/buoy, Aqua-Sim's S-FAMA rules (docs/paper-twinbot.md)")
     ap.add_argument("--workers", type=int, default=1, help="twinbot --seeds: worker processes")
     ap.set_defaults(fn=run)
 
@@ -58,6 +59,11 @@ def run(a: argparse.Namespace) -> int:
         raise UserError(f"uwsimnet experiment: --speed: a number from {lo:g} to {hi:g}, for the real-time run")
     if a.seeds is not None and a.name == "hil-formation":
         raise UserError("uwsimnet experiment: --seeds applies to phy-layer, twinbot and table1")
+    if a.profile != "default" and a.name not in ("twinbot", "table1"):
+        raise UserError("uwsimnet experiment: --profile applies to twinbot and table1")
+    if a.profile != "default" and a.name == "twinbot" and a.seeds is not None:
+        raise UserError("uwsimnet experiment: twinbot --seeds runs the default profile only"
+                        " (table1 --profile original --seeds N gives intervals with the original's set-up)")
     out = Path(a.out or f"out/{a.name}")
     if a.seeds is not None and a.name == "twinbot":
         return _twinbot_seeds(a, out)
@@ -66,7 +72,7 @@ def run(a: argparse.Namespace) -> int:
         table1.run(out, seeds=parse_seeds(a.seeds or "1-3"), profile=a.profile)
         print((out / "summary.md").read_text())
         return 0
-    kw: dict[str, float] = {} if a.duration is None else {"duration": a.duration}
+    kw: dict[str, object] = {} if a.duration is None else {"duration": a.duration}
     if a.speed is not None:
         kw["speed"] = a.speed
     if a.seeds is not None:
@@ -79,6 +85,7 @@ def run(a: argparse.Namespace) -> int:
         from ..experiments import hil_realtime as experiment
     else:
         from ..experiments import twinbot as experiment
+        kw["profile"] = a.profile
 
     def interrupt(*_: object) -> None:
         raise KeyboardInterrupt

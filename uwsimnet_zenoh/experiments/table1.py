@@ -29,16 +29,9 @@ PROTOCOLS = ("aloha", "sfama")
 
 
 def original_overrides(protocol: str) -> dict[str, object]:
-    """The original experiment's set-up (dccomms_examples testing/mac_twinbot.sh, twinbot.xml) as scene
-    overrides, an approximation: 10 B more on air per DATA frame modelled with headerBytes (VariableLength2B
-    framing +5, Aqua-Sim's MAC header on DATA +5), control frames their MAC size + 5 B of framing, a
-    500-byte tx FIFO, no retry limit, support -> leader (1) and buoy -> explorer0 (10) unicast."""
-    ov: dict[str, object] = {"device.*.header_bytes": 10, "device.*.tx_fifo_bytes": 500,
-                             "device.*.mac.maxRetries": "-1", "device.*.mac.ackSize": "10",
-                             "flow.support.dst": 1, "flow.buoy.dst": 10}
-    if protocol == "sfama":
-        ov.update({"device.*.mac.rtsSize": "12", "device.*.mac.ctsSize": "12"})
-    return ov
+    """The original experiment's set-up as scene overrides: `twinbot.profile_overrides(protocol,
+    "original")` (dccomms_examples testing/mac_twinbot.sh, twinbot.xml; Aqua-Sim NG's S-FAMA rules)."""
+    return twinbot.profile_overrides(protocol, "original")
 
 
 def run(out: Path, seeds: list[int] | tuple[int, ...] = (1, 2, 3), progress: bool = True,
