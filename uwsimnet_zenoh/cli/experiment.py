@@ -43,8 +43,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                                     " twinbot: the three MACs over these seeds with 95 %% intervals;"
                                     " table1: the saturation search over these seeds (default 1-3)")
     ap.add_argument("--profile", choices=("default", "original"), default="default",
-                    help="table1: 'original' = the original's framing (+10 B on DATA), 500 B FIFO, no retry limit,"
-                         " unicast support/buoy (approximated with headerBytes)")
+                    help="twinbot, table1: 'original' = the original experiment's set-up: framing and Aqua-Sim's"
+                         " MAC header (+10 B on DATA, headerBytes), 500 B FIFO, no retry limit, unicast"
+                         " support/buoy, Aqua-Sim's S-FAMA rules (docs/paper-twinbot.md)")
     ap.add_argument("--traffic", choices=("paper", "control"), default=None,
                     help="hil-formation: 'paper' (default) = the control frames plus the Sec. 3.2 image flows, as the"
                          " paper states; 'control' = the control frames only (the lighter variant)")
@@ -69,6 +70,11 @@ def run(a: argparse.Namespace) -> int:
         raise UserError("uwsimnet experiment: --reading applies to phy-layer only")
     if a.seeds is not None and a.name == "hil-formation":
         raise UserError("uwsimnet experiment: --seeds applies to phy-layer, twinbot and table1")
+    if a.profile != "default" and a.name not in ("twinbot", "table1"):
+        raise UserError("uwsimnet experiment: --profile applies to twinbot and table1")
+    if a.profile != "default" and a.name == "twinbot" and a.seeds is not None:
+        raise UserError("uwsimnet experiment: twinbot --seeds runs the default profile only"
+                        " (table1 --profile original --seeds N gives intervals with the original's set-up)")
     out = Path(a.out or f"out/{a.name}")
     if a.seeds is not None and a.name == "twinbot":
         return _twinbot_seeds(a, out)
@@ -97,6 +103,7 @@ def run(a: argparse.Namespace) -> int:
         from ..experiments import hil_realtime as experiment
     else:
         from ..experiments import twinbot as experiment
+        kw["profile"] = a.profile
 
     def interrupt(*_: object) -> None:
         raise KeyboardInterrupt

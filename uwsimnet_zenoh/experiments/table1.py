@@ -29,16 +29,9 @@ PROTOCOLS = ("aloha", "sfama")
 
 
 def original_overrides(protocol: str) -> dict[str, object]:
-    """The original experiment's set-up (dccomms_examples testing/mac_twinbot.sh, twinbot.xml) as scene
-    overrides, an approximation: 10 B more on air per DATA frame modelled with headerBytes (VariableLength2B
-    framing +5, Aqua-Sim's MAC header on DATA +5), control frames their MAC size + 5 B of framing, a
-    500-byte tx FIFO, no retry limit, support -> leader (1) and buoy -> explorer0 (10) unicast."""
-    ov: dict[str, object] = {"device.*.header_bytes": 10, "device.*.tx_fifo_bytes": 500,
-                             "device.*.mac.maxRetries": "-1", "device.*.mac.ackSize": "10",
-                             "flow.support.dst": 1, "flow.buoy.dst": 10}
-    if protocol == "sfama":
-        ov.update({"device.*.mac.rtsSize": "12", "device.*.mac.ctsSize": "12"})
-    return ov
+    """The original experiment's set-up as scene overrides: `twinbot.profile_overrides(protocol,
+    "original")` (dccomms_examples testing/mac_twinbot.sh, twinbot.xml; Aqua-Sim NG's S-FAMA rules)."""
+    return twinbot.profile_overrides(protocol, "original")
 
 
 def run(out: Path, seeds: list[int] | tuple[int, ...] = (1, 2, 3), progress: bool = True,
@@ -66,7 +59,54 @@ def run(out: Path, seeds: list[int] | tuple[int, ...] = (1, 2, 3), progress: boo
                       + f" (paper {twinbot.PAPER_TABLE1[p][flow]:g}), {len(s.probes)} runs", flush=True)
     (out / "summary.json").write_text(json.dumps(res, indent=2))
     (out / "summary.md").write_text(markdown(res))
+    plot(res, out)
     return res
+
+
+def plot(res: dict, out: Path) -> Path:
+    """table1-found.png: per channel, each MAC's found maximum (mean and 95 % interval over the seeds, the
+    seeds as dots) next to the paper's Table 1 rate (a black bar)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from ..analysis.figures import protocol_colour
+
+    fig = Figure(figsize=(9, 3.8))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(GROUPS))
+    for ax, ch in zip(axes, GROUPS, strict=True):
+        for i, p in enumerate(res["found"]):
+            c = res["found"][p][ch]
+            half = c["half_Bps"] or 0.0
+            ax.bar(i, c["mean_Bps"], 0.6, yerr=half, capsize=6, color=protocol_colour(p), alpha=0.85,
+                   label="found (mean, 95 % interval)" if i == 0 else None)
+            seeds = list(c["per_seed_Bps"].values())
+            ax.plot([i + 0.12] * len(seeds), seeds, "o", ms=4, color="black", alpha=0.5,
+                    label="per seed" if i == 0 else None)
+            ax.hlines(c["paper_Bps"], i - 0.35, i + 0.35, colors="black", linewidth=2.5,
+                      label="paper's Table 1" if i == 0 else None)
+        ax.set_xticks(range(len(res["found"])), [twinbot.PROTOCOLS[p][1] for p in res["found"]])
+        ax.set_title(f"{ch} ({GROUPS[ch][0]}+{'+'.join(GROUPS[ch][1])})", fontsize=10)
+        ax.set_ylabel("highest sustained rate (payload B/s per flow)")
+        ax.set_ylim(bottom=0)
+    axes[0].legend(fontsize=8, loc="lower left")
+    fig.suptitle(f"Table 1 found by saturation search, profile {res.get('profile', 'default')},"
+                 f" seeds {res['seeds'][0]}-{res['seeds'][-1]}", fontsize=11)
+    fig.tight_layout()
+    path = out / "table1-found.png"
+    fig.savefig(path, dpi=110)
+    return path
+
+
+if __name__ == "__main__":
+    import sys
+
+    if len(sys.argv) == 3 and sys.argv[1] == "--plot":      # redraw from a run's summary.json
+        d = Path(sys.argv[2])
+        print(plot(json.loads((d / "summary.json").read_text()), d))
+    else:
+        print("usage: python -m uwsimnet_zenoh.experiments.table1 --plot OUTDIR"
+              " (runs: uwsimnet experiment table1)")
 
 
 def markdown(res: dict) -> str:

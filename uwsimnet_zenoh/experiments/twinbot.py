@@ -65,6 +65,36 @@ PAPER_TABLE1: dict[str, dict[str, float]] = {   # B/s, the paper's Table 1
 PAPER_TABLE1["nomac"] = PAPER_TABLE1["aloha"]   # "The data flows were configured as with the CS-ALOHA."
 PAPER_NOMAC_SUCCEEDED = ("support", "buoy", "E2")
 
+# -- profiles: the default set-up above, or the original experiment's (issue #16) -----------------------
+PROFILES = ("default", "original")
+ORIGINAL_UNICAST = {"support": 1, "buoy": 10}
+"""The original's support -> leader and buoy -> explorer0 flows (dccomms_examples testing/mac_twinbot.sh)."""
+AQUASIM_SFAMA = {"broadcast": "aquasim", "answerRtsInBackoff": "0", "overhearEndsRound": "1", "carrierSense": "0"}
+"""Aqua-Sim NG's S-FAMA rules (rmartin5/aqua-sim-ng model/aqua-sim-mac-sfama.cc at 0653634; mac/sfama.py)."""
+
+
+def profile_overrides(protocol: str, profile: str = "default") -> dict[str, object]:
+    """Scene overrides of a profile (docs/paper-twinbot.md).  `original`: the original experiment's set-up
+    (dccomms_examples testing/mac_twinbot.sh and testing/scenes/twinbot.xml; ../shared/notes 1.6): a 500-byte
+    tx FIFO, support -> leader and buoy -> explorer0 unicast, DATA frames 5 B longer on air for the
+    VariableLength2BPacket framing and, with a MAC, 5 B more for Aqua-Sim's MAC header (headerBytes 5 / 10);
+    Aqua-Sim's control frames are its header only (ALOHA/S-FAMA ACK 5 B, RTS/CTS 7 B: they are made inside
+    ns-3, without the dccomms framing); no retry limit; Aqua-Sim's S-FAMA rules."""
+    if profile == "default":
+        return {}
+    if profile != "original":
+        raise ValueError(f"profile: expected one of {', '.join(PROFILES)}, got {profile!r}")
+    ov: dict[str, object] = {"device.*.tx_fifo_bytes": 500,
+                             **{f"flow.{n}.dst": a for n, a in ORIGINAL_UNICAST.items()}}
+    if protocol == "nomac":
+        ov["device.*.header_bytes"] = 5         # no MAC: the framing only
+        return ov
+    ov.update({"device.*.header_bytes": 10, "device.*.mac.maxRetries": "-1", "device.*.mac.ackSize": "5"})
+    if protocol == "sfama":
+        ov.update({"device.*.mac.rtsSize": "7", "device.*.mac.ctsSize": "7",
+                   **{f"device.*.mac.{k}": v for k, v in AQUASIM_SFAMA.items()}})
+    return ov
+
 
 # -- the scene --------------------------------------------------------------------------------------
 def _lawnmower(x0: float, y0: float, along: str, du: float, dv: float, z: float) -> list[tuple[float, ...]]:
@@ -227,19 +257,21 @@ def write_scenes() -> list[Path]:
 DEVICES_PER_CHANNEL = {RF: 3, ACOUSTIC: 5}
 
 
-def receivers(flow: str) -> int:
+def receivers(flow: str, profile: str = "default") -> int:
     """Intended receivers of a flow: 1 for unicast, every other device on the channel for broadcast."""
     f = next(f for f in FLOWS if f.name == flow)
+    if profile == "original" and flow in ORIGINAL_UNICAST:
+        return 1
     return DEVICES_PER_CHANNEL[f.channel] - 1 if f.dst == 255 else 1
 
 
-def per_receiver(metrics: dict) -> dict:
+def per_receiver(metrics: dict, profile: str = "default") -> dict:
     """The report counts a broadcast frame once per receiver (the support's 4 B/s reaching two I-AUVs is
     8 B/s delivered); the paper's Table 1 gives rates per receiver.  Divide the throughput and the
     efficiency of broadcast flows by their number of receivers; the rest is unchanged."""
     out = {}
     for name, m in metrics.items():
-        n = receivers(name) if any(f.name == name for f in FLOWS) else 1
+        n = receivers(name, profile) if any(f.name == name for f in FLOWS) else 1
         if n == 1:
             out[name] = m
             continue
@@ -248,11 +280,11 @@ def per_receiver(metrics: dict) -> dict:
     return out
 
 
-def channel_efficiency(metrics: dict, channel: int) -> float | None:
+def channel_efficiency(metrics: dict, channel: int, profile: str = "default") -> float | None:
     """Payload bytes delivered (per receiver for broadcast) / bytes put on air (data, retransmissions and
     control frames) over the flows of a channel."""
     names = {f.name for f in FLOWS if f.channel == channel}
-    got = sum(m.payload_delivered / receivers(n) for n, m in metrics.items() if n in names)
+    got = sum(m.payload_delivered / receivers(n, profile) for n, m in metrics.items() if n in names)
     air = sum(m.bytes_on_air for n, m in metrics.items() if n in names)
     return got / air if air else None
 
@@ -276,21 +308,23 @@ VARIANTS: dict[str, tuple[str, tuple[str, ...], dict]] = {
 }
 
 
-def _run_one(protocol: str, scene, trace: Path, progress: bool) -> tuple[dict, dict]:
-    """Run one scene; (per-receiver flow metrics, summary of the run)."""
+def _run_one(protocol: str, scene, trace: Path, progress: bool, profile: str = "default") -> tuple[dict, dict]:
+    """Run one scene (with the profile's overrides); (per-receiver flow metrics, summary of the run)."""
     from ..analysis import analyse
+    from ..app.overrides import apply
     from ..app.virtual import run_virtual
 
+    scene = apply(scene, profile_overrides(protocol, profile))
     run_virtual(scene, seed=None, duration=None, trace_path=trace, progress=progress)
     a = analyse(trace)
-    flows = per_receiver(a.flows)
+    flows = per_receiver(a.flows, profile)
     summary = {
-        "label": PROTOCOLS[protocol][1], "trace": str(trace),
+        "label": PROTOCOLS[protocol][1], "trace": str(trace), "profile": profile,
         "conservation_violations": list(a.conservation),
         "in_flight": len(a.conservation.in_flight),
-        "efficiency_rf": channel_efficiency(a.flows, RF),
-        "efficiency_acoustic": channel_efficiency(a.flows, ACOUSTIC),
-        "flows": {n: {"configured": PAPER_TABLE1[protocol].get(n), "receivers": receivers(n),
+        "efficiency_rf": channel_efficiency(a.flows, RF, profile),
+        "efficiency_acoustic": channel_efficiency(a.flows, ACOUSTIC, profile),
+        "flows": {n: {"configured": PAPER_TABLE1[protocol].get(n), "receivers": receivers(n, profile),
                       "throughput": m.throughput, "offered": m.offered, "efficiency": m.efficiency,
                       "delay_mean": m.delay_mean, "jitter": m.jitter, "enqueued": m.enqueued,
                       "sent": m.sent, "unique_sent": m.unique_sent, "delivered": m.delivered,
@@ -301,22 +335,26 @@ def _run_one(protocol: str, scene, trace: Path, progress: bool) -> tuple[dict, d
 
 
 def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PROTOCOLS),
-        variants: tuple[str, ...] = tuple(VARIANTS)) -> dict:
+        variants: tuple[str, ...] = tuple(VARIANTS), profile: str = "default") -> dict:
     """Run the scenes into `out` (and the sensitivity variants into out/<variant>/); return the summary
-    (also written as summary.json and summary.md, with table1.md and fig7-mac-comparison.png)."""
+    (also written as summary.json and summary.md, with table1.md and fig7-mac-comparison.png).  `profile`:
+    "default" (the set-up of docs/paper-twinbot.md) or "original" (`profile_overrides`)."""
     from ..analysis.figures import compare_markdown, plot_compare
     from ..scene.load import load_scene, load_scene_text
 
     out.mkdir(parents=True, exist_ok=True)
     quiet = lambda *_: None   # noqa: E731  (the scenes' warnings are known: no pose sources etc.)
     metrics: dict[str, dict] = {}
-    summary: dict = {"runs": {}, "variants": {}}
+    profile_overrides("nomac", profile)          # an unknown profile fails before any run
+    summary: dict = {"profile": profile, "runs": {}, "variants": {}}
     for p in protocols:
         flows, summary["runs"][p] = _run_one(p, load_scene(scene_path(p), on_warning=quiet),
-                                             out / f"{p}.trace.jsonl", progress)
+                                             out / f"{p}.trace.jsonl", progress, profile)
         metrics[PROTOCOLS[p][1]] = flows
-    figs = plot_compare(metrics, out, title="TWINBOT scene: MAC comparison per flow"
-                                            " (paper Fig. 7; broadcast flows per receiver)")
+    title = "TWINBOT scene: MAC comparison per flow (paper Fig. 7; broadcast flows per receiver)"
+    if profile != "default":
+        title = f"TWINBOT scene, profile {profile}: MAC comparison per flow (paper Fig. 7)"
+    figs = plot_compare(metrics, out, title=title)
     summary["figures"] = [str(f) for f in figs]
     summary["compare_table"] = compare_markdown(metrics)
     for v in variants:
@@ -327,7 +365,7 @@ def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PRO
         vmetrics: dict[str, dict] = {}
         for p in (q for q in which if q in protocols):
             scene = load_scene_text(scene_xml(p, **kw), source=f"twinbot-{p}-{v}.xml", on_warning=quiet)
-            flows, runs[p] = _run_one(p, scene, vdir / f"{p}.trace.jsonl", progress)
+            flows, runs[p] = _run_one(p, scene, vdir / f"{p}.trace.jsonl", progress, profile)
             vmetrics[PROTOCOLS[p][1]] = flows
         figs = plot_compare(vmetrics, vdir, title=f"TWINBOT scene, variant {v}: {what}")
         summary["variants"][v] = {"what": what, "runs": runs, "figures": [str(f) for f in figs]}
@@ -391,7 +429,7 @@ def delay_table(runs: dict) -> str:
 
 
 def markdown(s: dict) -> str:
-    lines = ["# TWINBOT MAC experiment (paper Section 3.2)", "",
+    lines = ["# TWINBOT MAC experiment (paper Section 3.2)", "", f"Profile: {s.get('profile', 'default')}.", "",
              "## Throughput per flow, B/s: measured (configured = the paper's Table 1)", "",
              "Broadcast flows (support, buoy): per receiver.", "", table1(s["runs"]),
              "## Fig. 7 numbers per flow", "", s["compare_table"],

@@ -19,6 +19,22 @@ or about to send DATA, that overhears another node's RTS or CTS gives up this ro
 failure either: it is contention, like a busy channel).  A failed attempt (no CTS, no ACK) is retried
 after a new backoff, up to maxRetries times, then the frame is dropped with reason `retry`.
 Broadcast frames: RTS to 255 (so that neighbours defer), DATA in slot n+2, no CTS, no ACK.
+
+Aqua-Sim NG's AquaSimSFama (rmartin5/aqua-sim-ng, model/aqua-sim-mac-sfama.cc at 0653634, the last change
+before the paper's runs) differs in four rules; each is a parameter (docs/mac.md, "Aqua-Sim's rules"),
+off by default, and the `original` profile of the TWINBOT experiments turns all four on:
+
+    broadcast=aquasim        a broadcast goes out as an RTS to 255 that nobody answers: every attempt
+                             fails like an unanswered unicast one (retried per maxRetries; -1: for ever,
+                             holding up the queue).  broadcast=drop: refused at once (drop `broadcast`)
+    answerRtsInBackoff=0     after a failed attempt the node first backs off U{0..maxBackoffSlots-1}
+                             slots in which it answers no RTS, then draws the usual backoff before its RTS
+    overhearEndsRound=1      an overheard RTS, CTS or DATA (or a CTS for us we are not waiting for) ends
+                             the round in any state: waiting for a CTS, for the data slot or for the ACK
+                             (sent again after the deferral, not a failed attempt), and as responder: the
+                             CTS or ACK not yet sent is not sent; a unicast DATA for us is accepted
+                             (ACK, delivery) only within a round we answered
+    carrierSense=0           no physical carrier sense at the RTS slot
 """
 
 from __future__ import annotations
@@ -42,6 +58,17 @@ EPS = 1e-9
 
 # initiator states (and IDLE, from base)
 BACKOFF, WAIT_CTS, WAIT_DATA_SLOT, SENDING, WAIT_ACK = "backoff", "wait_cts", "wait_data_slot", "sending", "wait_ack"
+RETRY_BACKOFF = "retry_backoff"
+"""answerRtsInBackoff=0: the backoff after a failed attempt, in which no RTS is answered (Aqua-Sim's BACKOFF)."""
+BROADCAST_MODES = ("rts", "aquasim", "drop")
+
+
+def flag(mac: SFama, name: str, default: int) -> bool:
+    """A 0/1 `<macProtocol>` parameter."""
+    v = number(mac, name, default, minimum=0, integer=True)
+    if v > 1:
+        raise ValueError(f"macProtocol {name}: expected 0 or 1, got {mac.params.get(name)!r}")
+    return v == 1
 
 
 class _Responder:
@@ -74,6 +101,15 @@ class SFama(OneFrameMac):
         largest = max(self.rts_size, self.cts_size, self.ack_size)
         default_slot = self.guard + ctx.tx_delay + ctx.tx_time(largest) + self.max_prop
         self.slot = number(self, "slotTime", default_slot, minimum=1e-9)
+        # Aqua-Sim NG's rules where they differ from ours (module docstring); the defaults are ours
+        self.broadcast_mode = str(params.get("broadcast", "rts")).strip().lower()
+        if self.broadcast_mode not in BROADCAST_MODES:
+            raise ValueError(f"macProtocol broadcast: expected one of {', '.join(BROADCAST_MODES)},"
+                             f" got {params.get('broadcast')!r}")
+        self.answer_rts_in_backoff = flag(self, "answerRtsInBackoff", 1)
+        self.overhear_ends_round = flag(self, "overhearEndsRound", 0)
+        self.carrier_sense = flag(self, "carrierSense", 1)
+        self._ack_timer: Event | None = None   # our ACK waiting for its slot (overhearEndsRound cancels it)
         self.nav = 0.0                       # no RTS of ours, and no CTS answered, before this time
         self._n = 0                          # slot index of our current RTS
         self._d = 0                          # its data slots
@@ -122,6 +158,9 @@ class SFama(OneFrameMac):
         ctx = self.ctx
         if frame.kind == "data":
             if not frame.broadcast:
+                if self.overhear_ends_round and not self._in_round(frame):
+                    self.on_overhear(frame)     # Aqua-Sim: not expected, so neither ACKed nor delivered
+                    return
                 self._answer_data(frame)
             if self._dedup.first(frame):
                 ctx.deliver(frame)
@@ -130,6 +169,10 @@ class SFama(OneFrameMac):
         info = frame.info or {}
         kind = info.get("type")
         cur = self.cur
+        if self.overhear_ends_round and ((frame.broadcast and kind == "RTS") or (kind == "CTS" and not (
+                self.state == WAIT_CTS and cur is not None and frame.src == cur.dst and frame.seq == cur.seq))):
+            self.on_overhear(frame)     # Aqua-Sim: an RTS not to our address, a CTS we do not wait for
+            return
         if frame.broadcast:
             if kind == "RTS":
                 self._defer((self.slot_index(ctx.now) + 3 + int(info.get("slots", 1))) * self.slot)
@@ -158,16 +201,41 @@ class SFama(OneFrameMac):
             end = next_boundary(now, self.slot) + self.slot      # its ACK slot
         else:
             return
-        if kind != "DATA" and self.state in (WAIT_CTS, WAIT_DATA_SLOT):
+        if self.overhear_ends_round:
+            self._end_round()       # Aqua-Sim: whatever the state, this round is over
+        elif kind != "DATA" and self.state in (WAIT_CTS, WAIT_DATA_SLOT):
             self._cancel()          # someone else holds the floor: give this round up (not a failure)
             self.state = BACKOFF
         self._defer(end)
+
+    def _end_round(self) -> None:
+        """overhearEndsRound: give up our round as initiator (a DATA already sent goes again after the
+        deferral, not counted as a failed attempt) and as responder (no CTS or ACK not yet sent)."""
+        if self.state in (WAIT_CTS, WAIT_DATA_SLOT, WAIT_ACK):
+            self._cancel()
+            self.state = BACKOFF
+        if self._resp is not None:
+            self._resp = None       # _send_cts checks it; data of that round is no longer accepted
+        if self._ack_timer is not None:
+            self._ack_timer.cancel()
+            self._ack_timer = None
+
+    def _in_round(self, data: Frame) -> bool:
+        """A unicast DATA for us belongs to the round we answered with a CTS."""
+        r = self._resp
+        return r is not None and r.src == data.src and r.seq == data.seq
 
     def _release(self) -> None:
         self._resp = None
 
     # -- initiator ----------------------------------------------------------------------------
     def _begin(self) -> None:
+        cur = self.cur
+        if cur is not None and cur.broadcast and self.broadcast_mode == "drop":
+            self.cur = None
+            self.ctx.drop(cur, "broadcast")      # broadcast=drop: this S-FAMA sends no broadcast data
+            self._done()
+            return
         self._schedule_rts()
 
     def _schedule_rts(self, strictly_later: bool = False) -> None:
@@ -194,13 +262,13 @@ class SFama(OneFrameMac):
         if now < self.nav - EPS or (self._resp is not None and now < self._resp.end - EPS):
             self._schedule_rts()
             return
-        if ctx.phy_busy or ctx.channel_busy():     # carrier sense at the slot start
+        if ctx.phy_busy or (self.carrier_sense and ctx.channel_busy()):     # carrier sense at the slot start
             self._schedule_rts(strictly_later=True)
             return
         self._n = round(now / self.slot)
         self._d = self.data_slots(cur)
         ctx.transmit(ctx.ctrl_frame(cur.dst, self.rts_size, {"type": "RTS", "slots": self._d}, about=cur))
-        if cur.broadcast:
+        if cur.broadcast and self.broadcast_mode == "rts":
             self.state = WAIT_DATA_SLOT
             self._timer = self._at((self._n + 2) * self.slot, self._send_data)
         else:
@@ -223,15 +291,27 @@ class SFama(OneFrameMac):
         self._timer = None
         if self.cur is None:
             return
-        if self._retry():
+        if not self._retry():
+            return
+        if self.answer_rts_in_backoff:
             self._schedule_rts(strictly_later=True)
+            return
+        # Aqua-Sim: a backoff in which no RTS is answered, then the usual one before the RTS
+        k = int(self.ctx.random() * self.max_backoff)
+        self.state = RETRY_BACKOFF
+        self._timer = self._at(next_boundary(self.ctx.now, self.slot) + k * self.slot, self._retry_backoff_done)
+
+    def _retry_backoff_done(self) -> None:
+        self._timer = None
+        if self.cur is not None and self.state == RETRY_BACKOFF:
+            self._schedule_rts()
 
     def _defer(self, end: float) -> None:
         """Virtual carrier sense: no RTS of ours before `end`."""
         if end <= self.nav:
             return
         self.nav = end
-        if self.state == BACKOFF:
+        if self.state in (BACKOFF, RETRY_BACKOFF):      # RETRY_BACKOFF: the deferral replaces it
             self._schedule_rts()
 
     # -- responder ----------------------------------------------------------------------------
@@ -242,6 +322,8 @@ class SFama(OneFrameMac):
             return                  # busy with our own exchange
         if self._resp is not None or now < self.nav - EPS:
             return                  # deferring to (or answering) another exchange
+        if self.state == RETRY_BACKOFF:
+            return                  # answerRtsInBackoff=0: backing off after a failed attempt
         n = self.slot_index(now)
         end = (n + 3 + slots) * self.slot
         self._resp = _Responder(rts, end)
@@ -259,9 +341,10 @@ class SFama(OneFrameMac):
         """A unicast DATA for us: ACK at the next slot start (also a duplicate: our ACK was lost)."""
         ctx = self.ctx
         ack = ctx.ctrl_frame(data.src, self.ack_size, {"type": "ACK", "seq": data.seq}, about=data)
-        self._at(next_boundary(ctx.now, self.slot), self._send_ack, ack)
+        self._ack_timer = self._at(next_boundary(ctx.now, self.slot), self._send_ack, ack)
 
     def _send_ack(self, ack: Frame) -> None:
+        self._ack_timer = None
         if not self.ctx.phy_busy:
             self.ctx.transmit(ack)
 
