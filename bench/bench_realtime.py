@@ -76,13 +76,18 @@ def scene_xml(n: int, world: str, *, zero_delay: bool = False) -> str:
     vs = []
     for i in range(n):
         src = "<position>0 0 0</position>" if zero_delay else "<poseSource>zenoh</poseSource>"
-        vs.append(f"""<vehicle><name>v{i}</name>{src}<CustomCommsDevice><dccommsId>m{i}</dccommsId><mac>{i + 1}</mac>
+        vs.append(f"""<vehicle><name>v{i}</name>{src}<CustomCommsDevice><dccommsId>m{i}</dccommsId><mac>{addr(i)}</mac>
 <txChannelId>0</txChannelId><rxChannelId>0</rxChannelId><bitrate>{bitrate}</bitrate><txFifoSize>100000</txFifoSize>
 <intrinsicDelay>0</intrinsicDelay><maxDistance>{reach}</maxDistance><rateErrorModel><errorUnit>packet</errorUnit>
 <errorRateExpr>0</errorRateExpr></rateErrorModel></CustomCommsDevice></vehicle>""")
     return f"""<?xml version="1.0"?><UWSimScene><simulation><seed>1</seed><clock>realtime</clock>
 <world>{world}</world></simulation><CustomCommsChannel><id>0</id><propTimeIncPerMeter>{prop}</propTimeIncPerMeter>
 </CustomCommsChannel>{''.join(vs)}</UWSimScene>"""
+
+
+def addr(i: int) -> int:
+    """Modem i's address: i + 1, skipping 255 (the broadcast address) for the swarm of 256."""
+    return i + 1 if i + 1 < 255 else i + 2
 
 
 def where(i: int, t: float) -> tuple[float, float, float]:
@@ -235,7 +240,7 @@ def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
                     d = t0 + (k + i / n) * period - time.monotonic()
                     if d > 0:
                         time.sleep(d)
-                    dst = i + 2 if i + 1 < n else i        # the next one on the line (the last: the previous)
+                    dst = addr(i + 1 if i + 1 < n else i - 1)   # the next one on the line (the last: the previous)
                     p.put(msgpack.packb({"dst": dst, "data": struct.pack("<d", time.time()) * 2}))
                     sent += 1
                 k += 1
