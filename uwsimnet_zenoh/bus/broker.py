@@ -601,8 +601,8 @@ class Broker:
         ep = self.endpoints[dev]
         counters = dict(m.counters)
         counters.update(ep.bad)
-        return {
-            "id": m.id, "kind": "sim", "world": self.keys.world, "address": m.address, "vehicle": m.vehicle,
+        return ep.info({
+            "address": m.address, "vehicle": m.vehicle,
             "tx_channel": m.tx_channel.id, "rx_channel": m.rx_channel.id, "bitrate": m.bitrate,
             # the tx channel's delay law, the parameters phy.channel.Channel computes delays with
             "prop": {"min": m.tx_channel.min_prop_s, "per_m": m.tx_channel.prop_s_per_m},
@@ -613,11 +613,10 @@ class Broker:
             "phy_busy": m.phy_busy, "mac": cfg.mac.name, "pose_known": known,
             "position": None if pos is None else [float(x) for x in pos],
             "counters": counters, "config": cfg.model_dump(mode="json", exclude={"line"}),
-            # the edge (docs/runtime.md): messages lost because their consumer did not keep up, and the
+            "epoch": self.clock.wall_epoch(), "speed": self.clock.speed,
+            # + the edge (docs/runtime.md): messages lost because their consumer did not keep up, and the
             # ingress delay (wall s from the tx put reaching the broker to the engine taking it)
-            "edge": ep.out.stats(), "ingress": ep.lane.stats(),
-            "t": net.sched.now, "epoch": self.clock.wall_epoch(), "speed": self.clock.speed,
-        }
+        }, kind="sim", world=self.keys.world, t=net.sched.now, ingress=ep.lane.stats())
 
     def _answer_info(self, query: zenoh.Query) -> None:
         with query:
