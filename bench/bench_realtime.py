@@ -5,7 +5,8 @@
    second, the applications in this one (every modem sends to its neighbour; one wildcard subscriber on
    `modem/*/rx`).  Delivery error = wall time at which the app gets a frame on `rx` minus the frame's
    modelled delivery time mapped to wall time (the broker's clock epoch + t_rx).  Also: the engine's own
-   lateness (how late events ran on the engine thread, from the broker's summary).
+   lateness (how late events ran on the engine thread, from the broker's summary) and the broker
+   process's CPU use while the apps send (user + system, % of one core).
 2. Broker overhead: app -> broker -> app with a zero modelled delay, against a bare Zenoh round trip
    through an echo process that is also a Python router (the same topology: app -> router+echo -> app).
 
@@ -189,6 +190,14 @@ class Sub:
             if line.startswith(ready):
                 self.ready.set()
 
+    def cpu_s(self) -> float:
+        """CPU seconds (user + system) the process has used so far (Linux /proc), NaN if unknown."""
+        try:
+            f = Path(f"/proc/{self.p.pid}/stat").read_text().rsplit(")", 1)[1].split()
+            return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return math.nan
+
     def stop(self) -> str:
         if self.p.poll() is None:
             self.p.send_signal(signal.SIGINT)
@@ -230,6 +239,7 @@ def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
                                  lambda smp: epochs.append(msgpack.unpackb(smp.payload.to_bytes())["epoch"]))
             pubs = [s.declare_publisher(f"uwsimnet/{world}/modem/m{i}/tx", express=True) for i in range(n)]
             time.sleep(1.5)                              # poses known everywhere
+            cpu0, wall0 = b.cpu_s(), time.monotonic()
             rate = {2: 10.0, 16: 2.0}.get(n, 1.0)        # frames per second per modem
             period = 1.0 / rate
             t0 = time.monotonic()
@@ -245,6 +255,7 @@ def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
                     sent += 1
                 k += 1
             time.sleep(1.0)
+            cpu = (b.cpu_s() - cpu0) / (time.monotonic() - wall0)
             for p in pubs:
                 p.undeclare()
     finally:
@@ -262,7 +273,7 @@ def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
     return {"n": n, "sent": sent, "delivered": len(got), "pose_msgs_per_s": n * pose_hz,
             "err_median": pct(err, 0.5), "err_p99": pct(err, 0.99), "err_max": max(err, default=math.nan),
             "e2e_median": pct(e2e, 0.5), "e2e_p99": pct(e2e, 0.99),
-            "engine_late_mean": late_mean, "engine_late_max": late_max}
+            "engine_late_mean": late_mean, "engine_late_max": late_max, "broker_cpu": cpu}
 
 
 # -- 2. broker overhead vs bare round trip ---------------------------------------------------------------
@@ -359,14 +370,15 @@ def main() -> None:
     print(f"Delivery error ({a.seconds:g} s per row, poses {a.hz:g} Hz per vehicle), microseconds:")
     print()
     print("| modems | pose msgs/s | frames delivered | error median | error p99 | error max |"
-          " app-to-app excess median | p99 | engine late mean | max |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          " app-to-app excess median | p99 | engine late mean | max | broker CPU |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     print(f"| floor: clock + router, no simulation | - | {floor['n']} | {floor['err_median'] * us:.0f} |"
-          f" {floor['err_p99'] * us:.0f} | {floor['err_max'] * us:.0f} | - | - | - | - |")
+          f" {floor['err_p99'] * us:.0f} | {floor['err_max'] * us:.0f} | - | - | - | - | - |")
     for r in rows:
         cells = [r["n"], f"{r['pose_msgs_per_s']:.0f}", f"{r['delivered']}/{r['sent']}"]
         cells += [f"{r[k] * us:.0f}" for k in ("err_median", "err_p99", "err_max", "e2e_median", "e2e_p99",
                                                "engine_late_mean", "engine_late_max")]
+        cells.append(f"{r['broker_cpu'] * 100:.0f} %")
         print("| " + " | ".join(str(c) for c in cells) + " |")
     print()
     print(f"Broker overhead ({ov['count']} sequential round trips, 16 B payload, zero modelled delay), microseconds:")
