@@ -68,10 +68,17 @@ def pct(xs: list[float], q: float) -> float:
 
 
 # -- scenes ---------------------------------------------------------------------------------------
-def scene_xml(n: int, world: str, *, zero_delay: bool = False) -> str:
+FLOOD = ("<flow><name>flood</name><src>fsrc</src><dst>254</dst><size>2000</size><interval>0.002</interval>"
+         "</flow>")
+"""1 MB/s of frames from fsrc to fbusy on channel 1 (its own air): what a stalled subscriber of fbusy's rx
+stops reading (the stall rows)."""
+
+
+def scene_xml(n: int, world: str, *, zero_delay: bool = False, flood: bool = False) -> str:
     """n vehicles (poseSource zenoh) 100 m apart on a line, one modem each, each hearing only its
     neighbours (150 m range; 16 B frames take 1.3 ms: no collisions with the staggered sends below);
-    or 2 co-located modems with no modelled delay at all (zero_delay)."""
+    or 2 co-located modems with no modelled delay at all (zero_delay).  `flood`: plus two fast modems
+    on a second channel, fsrc flooding fbusy (FLOOD)."""
     prop, bitrate = ("0", "1000000000") if zero_delay else ("0.6667", "100000")
     reach = 5000 if zero_delay else 150
     vs = []
@@ -81,9 +88,15 @@ def scene_xml(n: int, world: str, *, zero_delay: bool = False) -> str:
 <txChannelId>0</txChannelId><rxChannelId>0</rxChannelId><bitrate>{bitrate}</bitrate><txFifoSize>100000</txFifoSize>
 <intrinsicDelay>0</intrinsicDelay><maxDistance>{reach}</maxDistance><rateErrorModel><errorUnit>packet</errorUnit>
 <errorRateExpr>0</errorRateExpr></rateErrorModel></CustomCommsDevice></vehicle>""")
+    chans = f"<CustomCommsChannel><id>0</id><propTimeIncPerMeter>{prop}</propTimeIncPerMeter></CustomCommsChannel>"
+    if flood:
+        chans += "<CustomCommsChannel><id>1</id><propTimeIncPerMeter>0.6667</propTimeIncPerMeter></CustomCommsChannel>"
+        for name, a, y in (("fsrc", 253, 10), ("fbusy", 254, 20)):
+            vs.append(f"""<vehicle><name>{name}</name><position>0 {y} 10</position><CustomCommsDevice>
+<dccommsId>{name}</dccommsId><mac>{a}</mac><txChannelId>1</txChannelId><rxChannelId>1</rxChannelId>
+<bitrate>20000000</bitrate><txFifoSize>100000</txFifoSize><maxDistance>2000</maxDistance></CustomCommsDevice></vehicle>""")
     return f"""<?xml version="1.0"?><UWSimScene><simulation><seed>1</seed><clock>realtime</clock>
-<world>{world}</world></simulation><CustomCommsChannel><id>0</id><propTimeIncPerMeter>{prop}</propTimeIncPerMeter>
-</CustomCommsChannel>{''.join(vs)}</UWSimScene>"""
+<world>{world}</world></simulation>{chans}{''.join(vs)}{FLOOD if flood else ''}</UWSimScene>"""
 
 
 def addr(i: int) -> int:
@@ -111,6 +124,18 @@ def role_poses(endpoint: str, world: str, n: int, hz: float, seconds: float) -> 
             d = t0 + k * period - time.monotonic()
             if d > 0:
                 time.sleep(d)
+
+
+def role_listen(endpoint: str, key: str) -> None:
+    """A subscriber of `key` that counts what it gets (the bench SIGSTOPs it: a stalled consumer)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    n = [0]
+    with zenoh.open(client(endpoint)) as s:
+        s.declare_subscriber(key, lambda smp: n.__setitem__(0, n[0] + 1))
+        print("ready", flush=True)
+        while True:
+            time.sleep(0.2)
+            print(n[0], flush=True)
 
 
 def role_echo(endpoint: str) -> None:
@@ -223,22 +248,32 @@ def engine_late(out: str) -> tuple[float, float]:
 
 
 # -- 1. delivery error --------------------------------------------------------------------------------
-def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
-    world = f"rt{n}"
+def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path, stall: str = "") -> dict:
+    """`stall` "": the plain row; "flood": plus 1 MB/s of frames to fbusy on a second channel, read by a
+    subscriber of fbusy's rx; "stalled": the same with that subscriber SIGSTOPped (its buffers fill and
+    the broker's puts to it block): the delivery error of the line's modems should not move."""
+    world = f"rt{n}{stall}"
     ep = f"tcp/127.0.0.1:{free_port()}"
-    b = broker(scene_xml(n, world), ep, tmp, world)
+    b = broker(scene_xml(n, world, flood=bool(stall)), ep, tmp, world)
+    listener = None
+    if stall:
+        listener = Sub([PY, __file__, "--role", "listen", "--endpoint", ep, "--world",
+                        f"uwsimnet/{world}/modem/fbusy/rx"], "ready")
     poses = subprocess.Popen([PY, __file__, "--role", "poses", "--endpoint", ep, "--world", world, "--n", str(n),
                               "--hz", str(pose_hz), "--seconds", str(seconds + 4)], cwd=ROOT)
     got: list[tuple[float, bytes]] = []
     epochs: list[float] = []
     try:
         with zenoh.open(client(ep)) as s:
-            s.declare_subscriber(f"uwsimnet/{world}/modem/*/rx", direct(lambda smp: got.append(
+            s.declare_subscriber(f"uwsimnet/{world}/modem/m$*/rx", direct(lambda smp: got.append(
                 (time.time(), smp.payload.to_bytes()))))
             s.declare_subscriber(f"uwsimnet/{world}/clock",
                                  lambda smp: epochs.append(msgpack.unpackb(smp.payload.to_bytes())["epoch"]))
             pubs = [s.declare_publisher(f"uwsimnet/{world}/modem/m{i}/tx", express=True) for i in range(n)]
             time.sleep(1.5)                              # poses known everywhere
+            if listener is not None and stall == "stalled":
+                listener.p.send_signal(signal.SIGSTOP)
+                time.sleep(2.0)                          # its buffers fill; the broker's puts to it block
             cpu0, wall0 = b.cpu_s(), time.monotonic()
             rate = {2: 10.0, 16: 2.0}.get(n, 1.0)        # frames per second per modem
             period = 1.0 / rate
@@ -261,6 +296,10 @@ def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
     finally:
         poses.send_signal(signal.SIGINT)
         poses.wait(10)
+        if listener is not None:
+            listener.p.send_signal(signal.SIGCONT)
+            listener.p.kill()
+            listener.p.wait()
         out = b.stop()
     epoch = sorted(epochs)[len(epochs) // 2]
     err, e2e = [], []
@@ -270,7 +309,8 @@ def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
         w_send = struct.unpack("<d", m["data"][:8])[0]
         e2e.append((wall - w_send) - (m["t_rx"] - m["t_tx"]))
     late_mean, late_max = engine_late(out)
-    return {"n": n, "sent": sent, "delivered": len(got), "pose_msgs_per_s": n * pose_hz,
+    return {"n": n, "stall": stall, "lost_at_edge": "lost at the edge: fbusy" in out,
+            "sent": sent, "delivered": len(got), "pose_msgs_per_s": n * pose_hz,
             "err_median": pct(err, 0.5), "err_p99": pct(err, 0.99), "err_max": max(err, default=math.nan),
             "e2e_median": pct(e2e, 0.5), "e2e_p99": pct(e2e, 0.99),
             "engine_late_mean": late_mean, "engine_late_max": late_max, "broker_cpu": cpu}
@@ -330,7 +370,7 @@ def bench_overhead(count: int, tmp: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--role", choices=["main", "poses", "echo", "ticker"], default="main")
+    ap.add_argument("--role", choices=["main", "poses", "echo", "ticker", "listen"], default="main")
     ap.add_argument("--endpoint")
     ap.add_argument("--world")
     ap.add_argument("--n", type=int)
@@ -340,9 +380,15 @@ def main() -> None:
     ap.add_argument("--round-trips", type=int, default=2000)
     ap.add_argument("--markdown", action="store_true")
     ap.add_argument("--rt", type=int, default=0, help="SCHED_RR priority for broker and apps (0: normal)")
+    ap.add_argument("--stall", type=int, default=0, metavar="N",
+                    help="also N modems + a 1 MB/s flood on a 2nd channel, its rx subscriber running, then"
+                         " SIGSTOPped (0: not measured)")
     a = ap.parse_args()
     if a.role == "poses":
         role_poses(a.endpoint, a.world, a.n, a.hz, a.seconds)
+        return
+    if a.role == "listen":
+        role_listen(a.endpoint, a.world)
         return
     if a.role == "echo":
         role_echo(a.endpoint)
@@ -358,7 +404,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         floor = bench_floor(a.seconds, 50.0)
-        rows = [bench_delivery(int(n), a.seconds, a.hz, tmp) for n in a.modems.split(",")]
+        rows = [bench_delivery(int(n), a.seconds, a.hz, tmp) for n in a.modems.split(",") if n]
+        if a.stall:
+            rows += [bench_delivery(a.stall, a.seconds, a.hz, tmp, stall) for stall in ("flood", "stalled")]
         ov = bench_overhead(a.round_trips, tmp)
     load2 = os.getloadavg()
     us = 1e6
@@ -375,7 +423,10 @@ def main() -> None:
     print(f"| floor: clock + router, no simulation | - | {floor['n']} | {floor['err_median'] * us:.0f} |"
           f" {floor['err_p99'] * us:.0f} | {floor['err_max'] * us:.0f} | - | - | - | - | - |")
     for r in rows:
-        cells = [r["n"], f"{r['pose_msgs_per_s']:.0f}", f"{r['delivered']}/{r['sent']}"]
+        label = {"": str(r["n"]), "flood": f"{r['n']} + flood on ch 1, its subscriber reading",
+                 "stalled": f"{r['n']} + flood on ch 1, its subscriber SIGSTOPped"
+                            + (" (lost at its edge)" if r["lost_at_edge"] else "")}[r["stall"]]
+        cells = [label, f"{r['pose_msgs_per_s']:.0f}", f"{r['delivered']}/{r['sent']}"]
         cells += [f"{r[k] * us:.0f}" for k in ("err_median", "err_p99", "err_max", "e2e_median", "e2e_p99",
                                                "engine_late_mean", "engine_late_max")]
         cells.append(f"{r['broker_cpu'] * 100:.0f} %")
