@@ -31,7 +31,7 @@ import contextlib
 import logging
 import sys
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
@@ -140,6 +140,8 @@ class Broker:
         self._pose_keys: dict[str, tuple[str | None, str | None]] = {}
         """pose key -> (vehicle, None) to apply, or (name, counter) to refuse, classified once per key."""
         self._pose_seen: set[str] = set()
+        self._to_wake: deque[Outbox] = deque()
+        """Outboxes holding non-urgent messages (statuses) whose thread is to be woken (_wake_outboxes)."""
         self._misc = self._outbox("*misc", outbox_capacity)
         self._trace_out: Outbox | None = None
         self._leaving: dict[Modem, Outbox] = {}
@@ -197,6 +199,7 @@ class Broker:
         self._clock_pub = s.declare_publisher(k.clock)
         self.clock.idle_hooks.append(self._publish_due)
         self.clock.idle_hooks.append(self._pull_poses_now)
+        self.clock.done_hooks.append(self._wake_outboxes)
         net.poses.pull = self._pull_poses
         self._schedule_poses()
         if self.clock_rate_hz > 0:
@@ -245,8 +248,14 @@ class Broker:
     def _outbox(self, name: str, capacity: int) -> Outbox:
         out = self.outboxes.get(name)
         if out is None or out._closing:
-            out = self.outboxes[name] = Outbox(name, capacity)
+            out = self.outboxes[name] = Outbox(name, capacity, defer=self._to_wake.append)
         return out
+
+    def _wake_outboxes(self) -> None:
+        """(engine, done hook) Wake the threads of the outboxes that took statuses meanwhile."""
+        q = self._to_wake
+        while q:
+            q.popleft().wake()
 
     def attach(self, m: Modem) -> Endpoint:
         k, s = self.keys, self.session

@@ -45,11 +45,11 @@ class ModemEndpoint:
         """Queue a status message (a non-int tag goes as nil); False if lost at the edge."""
         if not isinstance(tag, int) or isinstance(tag, bool):
             tag = None
-        # no hand-off of the interpreter for a status (one per frame queued, one per frame sent): only an
-        # rx frame, whose delivery time is modelled, is worth a thread switch in the middle of the engine's
-        # work; a status goes out when the engine next waits (within the 0.5 ms switch interval at worst)
+        # not urgent (one per frame queued, one per frame sent): only an rx frame, whose delivery time is
+        # modelled, is worth a thread wake-up and switch in the middle of the engine's work; a status goes
+        # out when the engine is done with what is due (Outbox.put)
         return self.out.put(self.status_pub.put, wire.encode_status(tag, event, reason, t, seq), "status",
-                            handoff=False)
+                            urgent=False)
 
     def stats(self) -> dict[str, Any]:
         return self.out.stats()

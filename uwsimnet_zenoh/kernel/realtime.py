@@ -38,6 +38,10 @@ _Item = tuple[float, Callable[..., Any], tuple]
 sched_yield = getattr(os, "sched_yield", lambda: None)
 IDLE_SLACK = 0.002
 """Idle hooks run only when the next event is at least this far (wall s): they never make one late."""
+SPIN = 0.0003
+"""Wall s of busy wait before each event (after a timed wait with a 1 us timer slack: it ends within
+~40-65 us of its deadline at the median/p90 on the 2-core VM; a longer spin only burns a core that the
+output threads need, docs/benchmarks.md)."""
 TIMER_SLACK_NS = 1000
 """The engine thread's timer slack on Linux (prctl PR_SET_TIMERSLACK): a timed wait ends within ~1 us of
 its deadline instead of the default 50 us, so the spin before an event can be short."""
@@ -63,7 +67,7 @@ class RealtimeClock:
     item raises; the clock logs it and keeps running either way.
     """
 
-    def __init__(self, sched: Scheduler, *, speed: float = 1.0, spin: float = 0.001,
+    def __init__(self, sched: Scheduler, *, speed: float = 1.0, spin: float = SPIN,
                  until: float | None = None, on_error: Callable[[BaseException], None] | None = None,
                  perf_counter: Callable[[], float] = time.perf_counter, yield_cpu: bool = True) -> None:
         if not speed > 0:
@@ -85,6 +89,10 @@ class RealtimeClock:
         self._started = False
         self.done = threading.Event()
         """Set when the engine thread has ended (`until` reached, `stop()`, or a fatal error)."""
+        self.done_hooks: list[Callable[[], None]] = []
+        """Called on the engine thread each time it is done with what is due (after the inbox and the due
+        events, before idle hooks and before it waits), whether or not it will wait: short work that
+        should not interrupt an event but must not wait for idleness either (waking output threads)."""
         self.idle_hooks: list[Callable[[], None]] = []
         """Called on the engine thread when it is about to wait and the next event is more than
         IDLE_SLACK away: deferred work (writing trace records) goes here, out of the path between an
@@ -258,6 +266,11 @@ class RealtimeClock:
                         sched.now = until
                     return
                 self._run_until(now)
+                for hook in self.done_hooks:
+                    try:
+                        hook()
+                    except BaseException as e:  # noqa: BLE001 - the engine keeps running
+                        self._fail(f"done hook {getattr(hook, '__qualname__', hook)}", e)
                 # 3. idle work if the next event leaves time for it, then wait for the next event, an
                 #    inbox item, a pause change or stop
                 nxt = sched.next_time()
