@@ -38,10 +38,10 @@ _Item = tuple[float, Callable[..., Any], tuple]
 sched_yield = getattr(os, "sched_yield", lambda: None)
 IDLE_SLACK = 0.002
 """Idle hooks run only when the next event is at least this far (wall s): they never make one late."""
-SPIN = 0.0003
-"""Wall s of busy wait before each event (after a timed wait with a 1 us timer slack: it ends within
-~40-65 us of its deadline at the median/p90 on the 2-core VM; a longer spin only burns a core that the
-output threads need, docs/benchmarks.md)."""
+SPIN = 0.001
+"""Wall s of busy wait before each event.  A timed wait (1 us timer slack) ends ~40-65 us after its
+deadline (median/p90) on a quiet 2-core VM, but under load a sleeping thread is woken much later: a
+0.3 ms spin saved ~10-15 % of a core and cost 100-200 us of delivery error median (docs/benchmarks.md)."""
 TIMER_SLACK_NS = 1000
 """The engine thread's timer slack on Linux (prctl PR_SET_TIMERSLACK): a timed wait ends within ~1 us of
 its deadline instead of the default 50 us, so the spin before an event can be short."""
