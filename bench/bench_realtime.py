@@ -5,7 +5,8 @@
    second, the applications in this one (every modem sends to its neighbour; one wildcard subscriber on
    `modem/*/rx`).  Delivery error = wall time at which the app gets a frame on `rx` minus the frame's
    modelled delivery time mapped to wall time (the broker's clock epoch + t_rx).  Also: the engine's own
-   lateness (how late events ran on the engine thread, from the broker's summary).
+   lateness (how late events ran on the engine thread, from the broker's summary) and the broker
+   process's CPU use while the apps send (user + system, % of one core).
 2. Broker overhead: app -> broker -> app with a zero modelled delay, against a bare Zenoh round trip
    through an echo process that is also a Python router (the same topology: app -> router+echo -> app).
 
@@ -67,22 +68,40 @@ def pct(xs: list[float], q: float) -> float:
 
 
 # -- scenes ---------------------------------------------------------------------------------------
-def scene_xml(n: int, world: str, *, zero_delay: bool = False) -> str:
+FLOOD = ("<flow><name>flood</name><src>fsrc</src><dst>254</dst><size>2000</size><interval>0.002</interval>"
+         "</flow>")
+"""1 MB/s of frames from fsrc to fbusy on channel 1 (its own air): what a stalled subscriber of fbusy's rx
+stops reading (the stall rows)."""
+
+
+def scene_xml(n: int, world: str, *, zero_delay: bool = False, flood: bool = False) -> str:
     """n vehicles (poseSource zenoh) 100 m apart on a line, one modem each, each hearing only its
     neighbours (150 m range; 16 B frames take 1.3 ms: no collisions with the staggered sends below);
-    or 2 co-located modems with no modelled delay at all (zero_delay)."""
+    or 2 co-located modems with no modelled delay at all (zero_delay).  `flood`: plus two fast modems
+    on a second channel, fsrc flooding fbusy (FLOOD)."""
     prop, bitrate = ("0", "1000000000") if zero_delay else ("0.6667", "100000")
     reach = 5000 if zero_delay else 150
     vs = []
     for i in range(n):
         src = "<position>0 0 0</position>" if zero_delay else "<poseSource>zenoh</poseSource>"
-        vs.append(f"""<vehicle><name>v{i}</name>{src}<CustomCommsDevice><dccommsId>m{i}</dccommsId><mac>{i + 1}</mac>
+        vs.append(f"""<vehicle><name>v{i}</name>{src}<CustomCommsDevice><dccommsId>m{i}</dccommsId><mac>{addr(i)}</mac>
 <txChannelId>0</txChannelId><rxChannelId>0</rxChannelId><bitrate>{bitrate}</bitrate><txFifoSize>100000</txFifoSize>
 <intrinsicDelay>0</intrinsicDelay><maxDistance>{reach}</maxDistance><rateErrorModel><errorUnit>packet</errorUnit>
 <errorRateExpr>0</errorRateExpr></rateErrorModel></CustomCommsDevice></vehicle>""")
+    chans = f"<CustomCommsChannel><id>0</id><propTimeIncPerMeter>{prop}</propTimeIncPerMeter></CustomCommsChannel>"
+    if flood:
+        chans += "<CustomCommsChannel><id>1</id><propTimeIncPerMeter>0.6667</propTimeIncPerMeter></CustomCommsChannel>"
+        for name, a, y in (("fsrc", 253, 10), ("fbusy", 254, 20)):
+            vs.append(f"""<vehicle><name>{name}</name><position>0 {y} 10</position><CustomCommsDevice>
+<dccommsId>{name}</dccommsId><mac>{a}</mac><txChannelId>1</txChannelId><rxChannelId>1</rxChannelId>
+<bitrate>20000000</bitrate><txFifoSize>100000</txFifoSize><maxDistance>2000</maxDistance></CustomCommsDevice></vehicle>""")
     return f"""<?xml version="1.0"?><UWSimScene><simulation><seed>1</seed><clock>realtime</clock>
-<world>{world}</world></simulation><CustomCommsChannel><id>0</id><propTimeIncPerMeter>{prop}</propTimeIncPerMeter>
-</CustomCommsChannel>{''.join(vs)}</UWSimScene>"""
+<world>{world}</world></simulation>{chans}{''.join(vs)}{FLOOD if flood else ''}</UWSimScene>"""
+
+
+def addr(i: int) -> int:
+    """Modem i's address: i + 1, skipping 255 (the broadcast address) for the swarm of 256."""
+    return i + 1 if i + 1 < 255 else i + 2
 
 
 def where(i: int, t: float) -> tuple[float, float, float]:
@@ -105,6 +124,18 @@ def role_poses(endpoint: str, world: str, n: int, hz: float, seconds: float) -> 
             d = t0 + k * period - time.monotonic()
             if d > 0:
                 time.sleep(d)
+
+
+def role_listen(endpoint: str, key: str) -> None:
+    """A subscriber of `key` that counts what it gets (the bench SIGSTOPs it: a stalled consumer)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    n = [0]
+    with zenoh.open(client(endpoint)) as s:
+        s.declare_subscriber(key, lambda smp: n.__setitem__(0, n[0] + 1))
+        print("ready", flush=True)
+        while True:
+            time.sleep(0.2)
+            print(n[0], flush=True)
 
 
 def role_echo(endpoint: str) -> None:
@@ -184,6 +215,14 @@ class Sub:
             if line.startswith(ready):
                 self.ready.set()
 
+    def cpu_s(self) -> float:
+        """CPU seconds (user + system) the process has used so far (Linux /proc), NaN if unknown."""
+        try:
+            f = Path(f"/proc/{self.p.pid}/stat").read_text().rsplit(")", 1)[1].split()
+            return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return math.nan
+
     def stop(self) -> str:
         if self.p.poll() is None:
             self.p.send_signal(signal.SIGINT)
@@ -209,22 +248,33 @@ def engine_late(out: str) -> tuple[float, float]:
 
 
 # -- 1. delivery error --------------------------------------------------------------------------------
-def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
-    world = f"rt{n}"
+def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path, stall: str = "") -> dict:
+    """`stall` "": the plain row; "flood": plus 1 MB/s of frames to fbusy on a second channel, read by a
+    subscriber of fbusy's rx; "stalled": the same with that subscriber SIGSTOPped (its buffers fill and
+    the broker's puts to it block): the delivery error of the line's modems should not move."""
+    world = f"rt{n}{stall}"
     ep = f"tcp/127.0.0.1:{free_port()}"
-    b = broker(scene_xml(n, world), ep, tmp, world)
+    b = broker(scene_xml(n, world, flood=bool(stall)), ep, tmp, world)
+    listener = None
+    if stall:
+        listener = Sub([PY, __file__, "--role", "listen", "--endpoint", ep, "--world",
+                        f"uwsimnet/{world}/modem/fbusy/rx"], "ready")
     poses = subprocess.Popen([PY, __file__, "--role", "poses", "--endpoint", ep, "--world", world, "--n", str(n),
                               "--hz", str(pose_hz), "--seconds", str(seconds + 4)], cwd=ROOT)
     got: list[tuple[float, bytes]] = []
     epochs: list[float] = []
     try:
         with zenoh.open(client(ep)) as s:
-            s.declare_subscriber(f"uwsimnet/{world}/modem/*/rx", direct(lambda smp: got.append(
+            s.declare_subscriber(f"uwsimnet/{world}/modem/m$*/rx", direct(lambda smp: got.append(
                 (time.time(), smp.payload.to_bytes()))))
             s.declare_subscriber(f"uwsimnet/{world}/clock",
                                  lambda smp: epochs.append(msgpack.unpackb(smp.payload.to_bytes())["epoch"]))
             pubs = [s.declare_publisher(f"uwsimnet/{world}/modem/m{i}/tx", express=True) for i in range(n)]
             time.sleep(1.5)                              # poses known everywhere
+            if listener is not None and stall == "stalled":
+                listener.p.send_signal(signal.SIGSTOP)
+                time.sleep(2.0)                          # its buffers fill; the broker's puts to it block
+            cpu0, wall0 = b.cpu_s(), time.monotonic()
             rate = {2: 10.0, 16: 2.0}.get(n, 1.0)        # frames per second per modem
             period = 1.0 / rate
             t0 = time.monotonic()
@@ -235,16 +285,21 @@ def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
                     d = t0 + (k + i / n) * period - time.monotonic()
                     if d > 0:
                         time.sleep(d)
-                    dst = i + 2 if i + 1 < n else i        # the next one on the line (the last: the previous)
+                    dst = addr(i + 1 if i + 1 < n else i - 1)   # the next one on the line (the last: the previous)
                     p.put(msgpack.packb({"dst": dst, "data": struct.pack("<d", time.time()) * 2}))
                     sent += 1
                 k += 1
             time.sleep(1.0)
+            cpu = (b.cpu_s() - cpu0) / (time.monotonic() - wall0)
             for p in pubs:
                 p.undeclare()
     finally:
         poses.send_signal(signal.SIGINT)
         poses.wait(10)
+        if listener is not None:
+            listener.p.send_signal(signal.SIGCONT)
+            listener.p.kill()
+            listener.p.wait()
         out = b.stop()
     epoch = sorted(epochs)[len(epochs) // 2]
     err, e2e = [], []
@@ -254,10 +309,11 @@ def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path) -> dict:
         w_send = struct.unpack("<d", m["data"][:8])[0]
         e2e.append((wall - w_send) - (m["t_rx"] - m["t_tx"]))
     late_mean, late_max = engine_late(out)
-    return {"n": n, "sent": sent, "delivered": len(got), "pose_msgs_per_s": n * pose_hz,
+    return {"n": n, "stall": stall, "lost_at_edge": "lost at the edge: fbusy" in out,
+            "sent": sent, "delivered": len(got), "pose_msgs_per_s": n * pose_hz,
             "err_median": pct(err, 0.5), "err_p99": pct(err, 0.99), "err_max": max(err, default=math.nan),
             "e2e_median": pct(e2e, 0.5), "e2e_p99": pct(e2e, 0.99),
-            "engine_late_mean": late_mean, "engine_late_max": late_max}
+            "engine_late_mean": late_mean, "engine_late_max": late_max, "broker_cpu": cpu}
 
 
 # -- 2. broker overhead vs bare round trip ---------------------------------------------------------------
@@ -314,7 +370,7 @@ def bench_overhead(count: int, tmp: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--role", choices=["main", "poses", "echo", "ticker"], default="main")
+    ap.add_argument("--role", choices=["main", "poses", "echo", "ticker", "listen"], default="main")
     ap.add_argument("--endpoint")
     ap.add_argument("--world")
     ap.add_argument("--n", type=int)
@@ -324,9 +380,15 @@ def main() -> None:
     ap.add_argument("--round-trips", type=int, default=2000)
     ap.add_argument("--markdown", action="store_true")
     ap.add_argument("--rt", type=int, default=0, help="SCHED_RR priority for broker and apps (0: normal)")
+    ap.add_argument("--stall", type=int, default=0, metavar="N",
+                    help="also N modems + a 1 MB/s flood on a 2nd channel, its rx subscriber running, then"
+                         " SIGSTOPped (0: not measured)")
     a = ap.parse_args()
     if a.role == "poses":
         role_poses(a.endpoint, a.world, a.n, a.hz, a.seconds)
+        return
+    if a.role == "listen":
+        role_listen(a.endpoint, a.world)
         return
     if a.role == "echo":
         role_echo(a.endpoint)
@@ -342,7 +404,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         floor = bench_floor(a.seconds, 50.0)
-        rows = [bench_delivery(int(n), a.seconds, a.hz, tmp) for n in a.modems.split(",")]
+        rows = [bench_delivery(int(n), a.seconds, a.hz, tmp) for n in a.modems.split(",") if n]
+        if a.stall:
+            rows += [bench_delivery(a.stall, a.seconds, a.hz, tmp, stall) for stall in ("flood", "stalled")]
         ov = bench_overhead(a.round_trips, tmp)
     load2 = os.getloadavg()
     us = 1e6
@@ -354,14 +418,18 @@ def main() -> None:
     print(f"Delivery error ({a.seconds:g} s per row, poses {a.hz:g} Hz per vehicle), microseconds:")
     print()
     print("| modems | pose msgs/s | frames delivered | error median | error p99 | error max |"
-          " app-to-app excess median | p99 | engine late mean | max |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          " app-to-app excess median | p99 | engine late mean | max | broker CPU |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     print(f"| floor: clock + router, no simulation | - | {floor['n']} | {floor['err_median'] * us:.0f} |"
-          f" {floor['err_p99'] * us:.0f} | {floor['err_max'] * us:.0f} | - | - | - | - |")
+          f" {floor['err_p99'] * us:.0f} | {floor['err_max'] * us:.0f} | - | - | - | - | - |")
     for r in rows:
-        cells = [r["n"], f"{r['pose_msgs_per_s']:.0f}", f"{r['delivered']}/{r['sent']}"]
+        label = {"": str(r["n"]), "flood": f"{r['n']} + flood on ch 1, its subscriber reading",
+                 "stalled": f"{r['n']} + flood on ch 1, its subscriber SIGSTOPped"
+                            + (" (lost at its edge)" if r["lost_at_edge"] else "")}[r["stall"]]
+        cells = [label, f"{r['pose_msgs_per_s']:.0f}", f"{r['delivered']}/{r['sent']}"]
         cells += [f"{r[k] * us:.0f}" for k in ("err_median", "err_p99", "err_max", "e2e_median", "e2e_p99",
                                                "engine_late_mean", "engine_late_max")]
+        cells.append(f"{r['broker_cpu'] * 100:.0f} %")
         print("| " + " | ".join(str(c) for c in cells) + " |")
     print()
     print(f"Broker overhead ({ov['count']} sequential round trips, 16 B payload, zero modelled delay), microseconds:")

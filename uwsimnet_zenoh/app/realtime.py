@@ -187,7 +187,7 @@ def run_realtime(scene: Scene, args: Any) -> int:
 def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | None, external: set[str],
          hosted: Scene, foreign: set[str], trace: str, tmp: bool) -> int:
     from ..bus.broker import Broker
-    from ..kernel.realtime import Deferred, RealtimeClock
+    from ..kernel.realtime import SPIN, Deferred, RealtimeClock
     from ..trace.events import JsonlSink
     from ..traffic.flow import FlowSource
 
@@ -224,7 +224,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                                         net.duration))
     failed = threading.Event()          # an event, a MAC or the engine raised: the run stops (exit 2)
     clock = RealtimeClock(net.sched, until=duration, speed=getattr(args, "speed", 1.0),
-                          spin=float(os.environ.get("UWSIMNET_SPIN") or 0.001),
+                          spin=float(os.environ.get("UWSIMNET_SPIN") or SPIN),
                           on_error=lambda e: failed.set())
     try:
         conf = (make_config("client", connect=connect, connect_timeout_ms=3000, config_file=zconf)

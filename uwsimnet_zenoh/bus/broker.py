@@ -31,7 +31,7 @@ import contextlib
 import logging
 import sys
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
@@ -43,7 +43,7 @@ from ..kernel.realtime import Deferred
 from .control import Control
 from .endpoint import BLOCK, ModemEndpoint
 from .hil import RETOKEN, SWAP_IN, SWAP_OUT, HilSwap
-from .outbox import INGRESS_WARN_S, LANE_CAPACITY, OUTBOX_CAPACITY, Lane, Outbox
+from .outbox import INGRESS_WARN_S, LANE_CAPACITY, OUTBOX_CAPACITY, POSE_KEYS, Lane, Latest, Outbox
 
 if TYPE_CHECKING:
     from ..engine.network import Network
@@ -54,6 +54,9 @@ if TYPE_CHECKING:
 log = logging.getLogger("uwsimnet.bus.broker")
 SWITCH_INTERVAL = 0.0005
 """s: the interpreter's thread switch interval while a broker runs (see Broker.start)."""
+KEY_CACHE = 4096
+"""Key expressions whose parse is remembered (tx keys -> modem id, pose keys -> vehicle and verdict)."""
+_MISS = object()
 
 def _direct(fn: Any) -> Any:
     """Run `fn` on Zenoh's network thread instead of a Python thread of its own: one thread hop (and
@@ -128,6 +131,17 @@ class Broker:
         self.outboxes: dict[str, Outbox] = {}
         """Outboxes by modem id, plus `*trace` and `*misc` (poses, clock, answers to unknown ids)."""
         self._other_lane = Lane("*", lane_capacity)         # tx for ids we do not serve (refused there)
+        self._info_lane = Lane("*info", lane_capacity)      # info and control queries take their turn in
+        self._control_lane = Lane("*control", lane_capacity)  # the round-robin like one more modem each
+        self._poses_in = Latest(POSE_KEYS)
+        """Pose samples waiting, the newest per key: applied when the geometry is read (see _pull_poses)."""
+        self._tx_keys: dict[str, str | None] = {}
+        """tx key -> modem id (None: not a tx key of this world), parsed once per key."""
+        self._pose_keys: dict[str, tuple[str | None, str | None]] = {}
+        """pose key -> (vehicle, None) to apply, or (name, counter) to refuse, classified once per key."""
+        self._pose_seen: set[str] = set()
+        self._to_wake: deque[Outbox] = deque()
+        """Outboxes holding non-urgent messages (statuses) whose thread is to be woken (_wake_outboxes)."""
         self._misc = self._outbox("*misc", outbox_capacity)
         self._trace_out: Outbox | None = None
         self._leaving: dict[Modem, Outbox] = {}
@@ -184,6 +198,9 @@ class Broker:
             self.clock.idle_hooks.append(self._trace_buf.flush)
         self._clock_pub = s.declare_publisher(k.clock)
         self.clock.idle_hooks.append(self._publish_due)
+        self.clock.idle_hooks.append(self._pull_poses_now)
+        self.clock.done_hooks.append(self._wake_outboxes)
+        net.poses.pull = self._pull_poses
         self._schedule_poses()
         if self.clock_rate_hz > 0:
             net.sched.at(net.sched.now, self._clock_tick)
@@ -231,8 +248,14 @@ class Broker:
     def _outbox(self, name: str, capacity: int) -> Outbox:
         out = self.outboxes.get(name)
         if out is None or out._closing:
-            out = self.outboxes[name] = Outbox(name, capacity)
+            out = self.outboxes[name] = Outbox(name, capacity, defer=self._to_wake.append)
         return out
+
+    def _wake_outboxes(self) -> None:
+        """(engine, done hook) Wake the threads of the outboxes that took statuses meanwhile."""
+        q = self._to_wake
+        while q:
+            q.popleft().wake()
 
     def attach(self, m: Modem) -> Endpoint:
         k, s = self.keys, self.session
@@ -263,17 +286,27 @@ class Broker:
         return self.endpoints.get(dev)
 
     # -- Zenoh callbacks: enqueue only -----------------------------------------------------------
+    def _tx_dev(self, key: str) -> str | None:
+        """The modem id of a tx key of this world, else None (parsed once per key, then a dict hit)."""
+        dev = self._tx_keys.get(key, _MISS)
+        if dev is _MISS:
+            k = parse(key)
+            dev = k.name if (k is not None and k.kind == "modem" and k.leaf == "tx"
+                             and k.world == self.keys.world) else None
+            if len(self._tx_keys) < KEY_CACHE:
+                self._tx_keys[key] = dev
+        return dev  # type: ignore[return-value]
+
     def _on_tx_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         pl = sample.payload
         size = len(pl)
         raw = None if size > self.tx_limit else pl.to_bytes()     # do not copy what we will refuse anyway
-        k = parse(key)
-        dev = k.name if k is not None else None
+        dev = self._tx_dev(key)
         lane = self.lanes.get(dev) if dev is not None and dev in self.endpoints else None
         if lane is None:
             lane = self._other_lane
-        item = (self.clock.now(), key, raw, size)
+        item = (self.clock.now(), dev, raw, size)
         r = lane.offer(item)
         if r:
             self.clock.call_soon(self._drain_lane, lane)
@@ -300,7 +333,7 @@ class Broker:
         got = lane.take()
         if got is None:
             return
-        delay, (stamp, key, raw, size) = got
+        delay, (stamp, dev, raw, size) = got
         sched = self.net.sched
         if stamp > sched.now:           # arrived after this turn was queued: not before its time
             nt = sched.next_time()
@@ -312,23 +345,54 @@ class Broker:
                       " the engine cannot keep up with what arrives", lane.name, delay * 1e3,
                       self.ingress_warn_s * 1e3)
         try:
-            self._handle_tx(key, raw, size)
+            self._handle_tx(dev, raw, size)
         finally:
             if lane.more():
                 self.clock.call_soon(self._drain_lane, lane)
 
     def _on_pose_sample(self, sample: zenoh.Sample) -> None:
+        # kept as the newest sample of its key, never waking the engine: the engine applies it when it
+        # next reads the geometry (a transmission, info, state) or idles, as of its arrival time; only a
+        # key's first sample wakes the engine (the vehicle's first pose is applied and logged at once)
         pl = sample.payload
         raw = pl.to_bytes() if len(pl) <= wire.MAX_SMALL_MESSAGE else None
-        self.clock.call_soon(self._handle_pose, str(sample.key_expr), raw)
+        key = str(sample.key_expr)
+        if self._poses_in.offer(key, self.clock.now(), raw) and key not in self._pose_seen \
+                and len(self._pose_seen) < POSE_KEYS:
+            self._pose_seen.add(key)
+            self.clock.call_soon(self._pull_poses_now)
 
     def _on_info_query(self, query: zenoh.Query) -> None:
-        self.clock.call_soon(self._answer_info, query)
+        self._queue_query(self._info_lane, query, self._answer_info, query)
 
     def _on_control_query(self, query: zenoh.Query) -> None:
         pl = query.payload
         raw = pl.to_bytes() if pl is not None and len(pl) <= wire.MAX_SMALL_MESSAGE else pl
-        self.clock.call_soon(self._answer_control, query, raw)
+        self._queue_query(self._control_lane, query, self._answer_control, query, raw)
+
+    def _queue_query(self, lane: Lane, query: zenoh.Query, fn: Any, *args: Any) -> None:
+        """(Zenoh thread) A query waits in its lane, which takes its turn among the modems' tx lanes: a
+        flood of queries costs the other modems' frames one query per round, not the whole flood."""
+        r = lane.offer((fn, args))
+        if r:
+            self.clock.call_soon(self._drain_queries, lane)
+        elif r is None:
+            with contextlib.suppress(Exception), query:
+                query.reply_err(wire.pack({"ok": False, "error": f"busy: {lane.capacity} queries are waiting"}))
+            self.warn(f"ingress:{lane.name}", "%s query refused: %d queries waiting for the engine", lane.name[1:],
+                      len(lane))
+
+    def _drain_queries(self, lane: Lane) -> None:
+        """(engine) One query of `lane`, then back in line behind the modems."""
+        got = lane.take()
+        if got is None:
+            return
+        _, (fn, args) = got
+        try:
+            fn(*args)
+        finally:
+            if lane.more():
+                self.clock.call_soon(self._drain_queries, lane)
 
     def _on_driver_sample(self, sample: zenoh.Sample) -> None:
         self.clock.call_soon(self._driver_change, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
@@ -351,11 +415,9 @@ class Broker:
         key = self.keys.status(dev)
         return lambda payload: self.session.put(key, payload, congestion_control=BLOCK)
 
-    def _handle_tx(self, key: str, raw: bytes | None, size: int) -> None:
-        k = parse(key)
-        if k is None or k.kind != "modem" or k.leaf != "tx" or k.world != self.keys.world:
+    def _handle_tx(self, dev: str | None, raw: bytes | None, size: int) -> None:
+        if dev is None:                                 # not a tx key of this world
             return
-        dev = k.name
         self.counters["tx_messages"] += 1
         if dev in self.real or dev in self.foreign:
             return                                      # served by a real driver / another broker
@@ -375,6 +437,7 @@ class Broker:
             self._refuse(dev, e.reason, e.detail, e.tag, ep)
             return
         m = ep.modem
+        self._pull_poses(self.net.sched.now)
         refuse = None if self.net.poses.known[m.vehicle_index] else "nopose"
         if refuse:
             self.counters["nopose"] += 1
@@ -416,25 +479,54 @@ class Broker:
         if pub is not None and out is not None and not out.put(pub.put, wire.pack(rec), "trace"):
             self.counters["edge_trace"] += 1
 
-    def _handle_pose(self, key: str, raw: bytes | None) -> None:
+    def _pull_poses_now(self) -> None:
+        """(engine, idle hook) Apply the pose samples that have arrived by now."""
+        self._pull_poses(self.clock.now())
+
+    def _pull_poses(self, t: float) -> None:
+        """(engine; PoseTable.pull) Apply the newest pose sample of each vehicle that arrived by
+        simulation time t, as of its arrival time.  A sample superseded by a newer one of the same vehicle
+        before the geometry was needed is counted (`poses_superseded`), not decoded: the newer one
+        replaces it entirely (position, velocity, time)."""
+        got = self._poses_in.take(t)
+        if got:
+            for key, n, stamp, raw in got:
+                self._apply_pose(key, n, stamp, raw)
+            if self._poses_in.refused:
+                self.counters["pose_refused"] = self._poses_in.refused
+
+    def _pose_verdict(self, key: str) -> tuple[str | None, str | None]:
+        """(vehicle, None) if samples on `key` position a vehicle, else (name, the counter of refusals)."""
+        got = self._pose_keys.get(key)
+        if got is not None:
+            return got
         k = parse(key)
         if k is None or k.kind != "pose" or k.world != self.keys.world:
-            self.counters["pose_bad_key"] += 1
-            return
-        name = k.name
-        v = self.net.vehicles.get(name)
-        if v is None:
-            self.counters["pose_unknown"] += 1
-            self.warn("pose_unknown", "pose for unknown vehicle %r ignored", name)
-            return
-        if v.pose_source != "zenoh":
-            if self.channels is not None:           # another broker of this world publishes it too:
-                self.counters["pose_peer"] += 1     # expected, counted, no warning (two would flood)
-                return
-            self.counters["pose_ignored"] += 1
-            self.warn(f"pose_ignored:{name}", "pose for %s ignored: the scene drives it (poseSource scene)",
-                      name)
-            return
+            got = (None, "pose_bad_key")
+        else:
+            v = self.net.vehicles.get(k.name)
+            if v is None:
+                got = (k.name, "pose_unknown")
+            elif v.pose_source != "zenoh":       # another broker of this world publishes it too: expected
+                got = (k.name, "pose_peer" if self.channels is not None else "pose_ignored")
+            else:
+                got = (k.name, None)
+        if len(self._pose_keys) < KEY_CACHE:
+            self._pose_keys[key] = got
+        return got
+
+    def _apply_pose(self, key: str, n: int, stamp: float, raw: bytes | None) -> None:
+        name, refused = self._pose_verdict(key)
+        if refused is not None:
+            self.counters[refused] += n
+            if refused == "pose_unknown":
+                self.warn("pose_unknown", "pose for unknown vehicle %r ignored", name)
+            elif refused == "pose_ignored":
+                self.warn(f"pose_ignored:{name}", "pose for %s ignored: the scene drives it (poseSource scene)",
+                          name)
+            return                               # pose_peer: counted, no warning (two would flood)
+        if n > 1:
+            self.counters["poses_superseded"] += n - 1
         try:
             if raw is None:
                 raise wire.CodecError("toolarge", f"pose sample over {wire.MAX_SMALL_MESSAGE} bytes")
@@ -444,7 +536,7 @@ class Broker:
             self.warn(f"pose_bad:{name}", "pose for %s ignored (%s): %s", name, e.reason, e.detail)
             return
         self.counters["poses"] += 1
-        self.net.move(name, pose.p, pose.v)
+        self.net.move(name, pose.p, pose.v, t=stamp)
         if name in self._waiting_pose:
             self._waiting_pose.discard(name)
             log.info("vehicle %s: first pose %s", name, list(pose.p))
@@ -512,13 +604,14 @@ class Broker:
         m = self.endpoints[dev].modem
         net = self.net
         cfg = m.cfg
+        self._pull_poses(net.sched.now)
         known = bool(net.poses.known[m.vehicle_index])
         pos = net.poses.positions(net.sched.now)[m.vehicle_index] if known else None
         ep = self.endpoints[dev]
         counters = dict(m.counters)
         counters.update(ep.bad)
-        return {
-            "id": m.id, "kind": "sim", "world": self.keys.world, "address": m.address, "vehicle": m.vehicle,
+        return ep.info({
+            "address": m.address, "vehicle": m.vehicle,
             "tx_channel": m.tx_channel.id, "rx_channel": m.rx_channel.id, "bitrate": m.bitrate,
             # the tx channel's delay law, the parameters phy.channel.Channel computes delays with
             "prop": {"min": m.tx_channel.min_prop_s, "per_m": m.tx_channel.prop_s_per_m},
@@ -529,11 +622,10 @@ class Broker:
             "phy_busy": m.phy_busy, "mac": cfg.mac.name, "pose_known": known,
             "position": None if pos is None else [float(x) for x in pos],
             "counters": counters, "config": cfg.model_dump(mode="json", exclude={"line"}),
-            # the edge (docs/runtime.md): messages lost because their consumer did not keep up, and the
+            "epoch": self.clock.wall_epoch(), "speed": self.clock.speed,
+            # + the edge (docs/runtime.md): messages lost because their consumer did not keep up, and the
             # ingress delay (wall s from the tx put reaching the broker to the engine taking it)
-            "edge": ep.out.stats(), "ingress": ep.lane.stats(),
-            "t": net.sched.now, "epoch": self.clock.wall_epoch(), "speed": self.clock.speed,
-        }
+        }, kind="sim", world=self.keys.world, t=net.sched.now, ingress=ep.lane.stats())
 
     def _answer_info(self, query: zenoh.Query) -> None:
         with query:

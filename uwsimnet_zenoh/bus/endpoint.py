@@ -45,10 +45,24 @@ class ModemEndpoint:
         """Queue a status message (a non-int tag goes as nil); False if lost at the edge."""
         if not isinstance(tag, int) or isinstance(tag, bool):
             tag = None
-        return self.out.put(self.status_pub.put, wire.encode_status(tag, event, reason, t, seq), "status")
+        # not urgent (one per frame queued, one per frame sent): only an rx frame, whose delivery time is
+        # modelled, is worth a thread wake-up and switch in the middle of the engine's work; a status goes
+        # out when the engine is done with what is due (Outbox.put)
+        return self.out.put(self.status_pub.put, wire.encode_status(tag, event, reason, t, seq), "status",
+                            urgent=False)
 
     def stats(self) -> dict[str, Any]:
         return self.out.stats()
+
+    def info(self, fields: dict[str, Any], *, kind: str, world: str, t: float,
+             ingress: dict[str, Any]) -> dict[str, Any]:
+        """The modem's `info` reply (docs/gli-protocol.md), the same for simulated and real modems:
+        `fields` (what the modem itself says) plus who answers, the outbox (`edge`) and how its tx
+        messages came in (`ingress`)."""
+        out = dict(fields)
+        out.update({"id": self.id, "kind": kind, "world": world, "t": t, "edge": self.out.stats(),
+                    "ingress": ingress})
+        return out
 
     def undeclare_after_queued(self) -> None:
         """Undeclare the publishers once what is queued for them has gone (the outbox stays usable)."""

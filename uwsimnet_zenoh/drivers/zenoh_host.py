@@ -123,8 +123,10 @@ class DriverHost:
                 info = dict(self.driver.info())
             except Exception as e:  # noqa: BLE001
                 info = {"error": str(e)}
-            info.update({"id": self.id, "kind": "real", "world": self.keys.world, "t": self.now(),
-                         "host_counters": dict(self.counters), "edge": self._ep.stats()})
+            info["host_counters"] = dict(self.counters)
+            # tx messages go to the driver on Zenoh's thread, with no lane: nothing waits, nothing refused
+            info = self._ep.info(info, kind="real", world=self.keys.world, t=self.now(),
+                                 ingress={"n": self.counters["tx"], "queued": 0, "refused": 0})
             if info.get("address") is None:
                 info["address"] = self.driver.address
             query.reply(self.keys.info(self.id), wire.pack(_plain(info)))

@@ -9,7 +9,7 @@ every receiver in a single numpy expression.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -56,7 +56,12 @@ class PoseTable:
         self.known = np.ones(n, dtype=bool)
         self._scripted: dict[int, Trajectory] = {}
         self._external: set[int] = set()
+        self._ext_idx = np.zeros(0, dtype=np.intp)      # the external vehicles' indices, sorted (numpy)
         self._cache_t = float("nan")
+        self.pull: Callable[[float], None] | None = None
+        """Called with t before positions at t are read: a source that applies pose samples lazily (the
+        Zenoh broker keeps the newest sample per vehicle and applies it only when the geometry is needed)
+        hooks in here.  It must only call `update`."""
         self.version = 0
         """Bumped on every change; with `moving` False, positions are constant until it changes."""
 
@@ -81,6 +86,7 @@ class PoseTable:
         """The vehicle is positioned only by samples from outside; unknown until the first one."""
         i = self.index[name]
         self._external.add(i)
+        self._ext_idx = np.array(sorted(self._external), dtype=np.intp)
         self._scripted.pop(i, None)
         self.known[i] = False
         self._changed()
@@ -97,14 +103,20 @@ class PoseTable:
 
     def positions(self, t: float) -> np.ndarray:
         """All positions at time t (scripted ones exact, external ones extrapolated by velocity)."""
+        if self.pull is not None:
+            self.pull(t)
         if t == self._cache_t:
             return self._cache
         pos = self._pos.copy() if (self._scripted or self._external) else self._pos
         for i, traj in self._scripted.items():
             pos[i] = traj.position(t)
-        for i in self._external:
-            if self.known[i]:
-                pos[i] = self._pos[i] + self._vel[i] * max(0.0, t - self._t_sample[i])
+        ext = self._ext_idx
+        if len(ext):
+            # one numpy expression for every external vehicle (the same doubles as one at a time:
+            # p + v * max(0, t - t_sample)); an unknown one keeps its (unused) stored position
+            ext = ext[self.known[ext]]
+            dt = np.maximum(t - self._t_sample[ext], 0.0)
+            pos[ext] = self._pos[ext] + self._vel[ext] * dt[:, None]
         self._cache, self._cache_t = pos, t
         return pos
 
