@@ -329,8 +329,39 @@ class Accumulator:
 
     def on_event(self, t: float, ev: str, ch: int, dev: str, frame: Any, reason: str | None,
                  fifo: int | None, dist: float | None, implicit: bool = False) -> None:
-        """A tracer listener (trace.events.Tracer.listen): the event as its trace record would say it."""
-        self.event(round(t, 9), ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow,
+        """A tracer listener (trace.events.Tracer.listen): the event as its trace record would say it.
+
+        The same as `event()` on the record's fields; the commonest case (a data frame of a flow whose
+        frame is known, at its transmitter: enq and tx) is done here without the second call."""
+        t = round(t, 9)
+        if ev == "tx" and frame.kind == "data":
+            fr = self.frames.get((dev, frame.seq))
+            if fr is not None and fr.ch == ch and (ch, frame.src) in self.devs.tx:
+                if t > self.t_end:
+                    self.t_end = t
+                cnt = self._chan_counts
+                ck = (ch, ev, reason)
+                cnt[ck] = cnt.get(ck, 0) + 1
+                size = frame.size
+                self._chan_bytes[ch] = self._chan_bytes.get(ch, 0) + size
+                a = self.accs.get(fr.flow)
+                if a is not None and a.t_first is not None and a.m.src is not None and a.m.dst is not None:
+                    a.t_last = t
+                    m = a.m
+                    n_tx = fr.n_tx = fr.n_tx + 1
+                    fr.t_tx = t
+                    if n_tx == 1:
+                        m.unique_sent += 1
+                        seq = frame.seq
+                        mx = self.max_tx_seq
+                        if seq > mx.get(dev, -1):
+                            mx[dev] = seq
+                    m.sent += 1
+                    m.data_bytes_on_air += size
+                    return
+                cnt[ck] -= 1                # not the common case after all: undo, and do it in full
+                self._chan_bytes[ch] -= size
+        self.event(t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow,
                    frame.kind, reason, dist is not None, implicit)
 
     def _acc(self, name: str, tx_dev: str, dst: Any) -> _Acc:
@@ -520,17 +551,18 @@ def _settle(frames: dict[tuple[str, int], _Frame], accs: dict[str, _Acc], devs: 
     total = 0
     in_flight: list[InFlight] = []
 
-    def bad(fr_label: str, msg: str) -> None:
+    def bad(fr_label: tuple[str, int, str], msg: str) -> None:
         nonlocal total
         total += 1
         if len(violations) < limit:
-            violations.append(f"{fr_label}: {msg}")
+            tx_dev, seq, flow = fr_label
+            violations.append(f"{tx_dev} seq {seq} (flow {flow}): {msg}")
 
     for (tx_dev, seq), fr in frames.items():
         a = accs[fr.flow]
         m = a.m
         drops = m.drops
-        label = f"{tx_dev} seq {seq} (flow {fr.flow})"
+        label = (tx_dev, seq, fr.flow)        # formatted only for a violation
         rcv = fr.receivers()
         n_tx = fr.n_tx
         any_rx = False
