@@ -351,7 +351,11 @@ class Accumulator:
                         if fr is None:
                             fr = frames[fkey] = _Frame(frame.flow, ch, frame.dst)
                         if fr.flow is frame.flow or fr.flow == frame.flow:
-                            self._count(t, ch, ev)
+                            if t > self.t_end:
+                                self.t_end = t
+                            cnt = self._chan_counts
+                            ck = (ch, ev, None)
+                            cnt[ck] = cnt.get(ck, 0) + 1
                             a.t_last = t
                             fr.n_enq += 1
                             if fr.t_enq is None:
@@ -365,7 +369,11 @@ class Accumulator:
                         fr = frames.get((dev, frame.seq))
                         if fr is not None and fr.ch == ch and (ch, frame.src) in self.devs.tx and \
                                 (fr.flow is frame.flow or fr.flow == frame.flow):
-                            self._count(t, ch, ev)
+                            if t > self.t_end:
+                                self.t_end = t
+                            cnt = self._chan_counts
+                            ck = (ch, ev, None)
+                            cnt[ck] = cnt.get(ck, 0) + 1
                             size = frame.size
                             self._chan_bytes[ch] = self._chan_bytes.get(ch, 0) + size
                             a.t_last = t
@@ -384,7 +392,11 @@ class Accumulator:
                         tx_dev = self.devs.tx.get((ch, frame.src))
                         fr = frames.get((tx_dev, frame.seq)) if tx_dev else None
                         if fr is not None and (fr.flow is frame.flow or fr.flow == frame.flow):
-                            self._count(t, ch, ev)
+                            if t > self.t_end:
+                                self.t_end = t
+                            cnt = self._chan_counts
+                            ck = (ch, ev, None)
+                            cnt[ck] = cnt.get(ck, 0) + 1
                             a.t_last = t
                             fr.receiver(dev)[1] += 1
                             m.delivered += 1
@@ -401,14 +413,6 @@ class Accumulator:
                             return
         self.event(t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow,
                    frame.kind, reason, dist is not None, implicit)
-
-    def _count(self, t: float, ch: Any, ev: str) -> None:
-        """What `event()` does first for every event (reason None): the end time, the channel's count."""
-        if t > self.t_end:
-            self.t_end = t
-        cnt = self._chan_counts
-        ck = (ch, ev, None)
-        cnt[ck] = cnt.get(ck, 0) + 1
 
     def _acc(self, name: str, tx_dev: str, dst: Any) -> _Acc:
         a = self.accs.get(name)

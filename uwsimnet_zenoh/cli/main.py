@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -88,6 +87,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                 view.stop_viewer(viewer)
     trace = args.trace or scene.tracing.log_to_file
     if args.view and not trace:                     # the page replays the run's trace after it
+        import tempfile  # noqa: PLC0415 - only here (start-up time)
+
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "trace.jsonl"
             run = simulate(scene, seed=args.seed, duration=args.duration, trace_path=path)
