@@ -17,7 +17,8 @@ Every figure is a whole process (start-up, imports and scene loading included) t
 gives its peak RSS; ns-3's own Simulator::Run time is shown too.  frames = transmissions (tx), counted by
 the bare engine (the runs are deterministic: the same frames in all three of ours).
 
-    .venv/bin/python bench/bench_user_path.py --ns3 /work/ext/ns3/venv/lib/python3.11/site-packages/ns3
+    python -m venv /tmp/ns3venv && /tmp/ns3venv/bin/pip install --no-deps ns3    # outside the repo (headers, libs)
+    .venv/bin/python bench/bench_user_path.py --ns3 /tmp/ns3venv/lib/python3.11/site-packages/ns3
     .venv/bin/python bench/bench_user_path.py --big          # N = 10 000, 100 000 frames: wall and peak RSS
 """
 
@@ -159,8 +160,8 @@ def big(n: int, frames: int, tmp: Path) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ns3", type=Path, default=Path(os.environ.get(
-        "NS3_DIR", "/work/ext/ns3/venv/lib/python3.11/site-packages/ns3")), help="the ns3 wheel's package folder")
-    ap.add_argument("--binary", type=Path, default=Path("/work/ext/ns3/ns3_aloha"))
+        "NS3_DIR", "/tmp/ns3venv/lib/python3.11/site-packages/ns3")), help="the ns3 wheel's package folder")
+    ap.add_argument("--binary", type=Path, default=Path("/tmp/ns3_aloha"))
     ap.add_argument("--no-ns3", action="store_true", help="our side only")
     ap.add_argument("--nodes", default="16,64,256,1024")
     ap.add_argument("--modes", default="half,full")

@@ -132,3 +132,26 @@ def test_unloadable_tracing_class_is_a_one_line_error(tmp_path):
     r = uwsimnet("run", str(p))
     assert r.returncode == 2 and "nosuchmod:X" in r.stderr and "Traceback" not in r.stderr
     assert r.stderr.startswith(f"{p}:")
+
+
+def test_virtual_run_loads_no_zenoh(tmp_path: Path) -> None:
+    """`uwsimnet run` on the virtual clock imports neither zenoh nor the gli package (start-up time), and
+    the endpoint the flags name by default is the gli client's."""
+    code = ("import sys; from uwsimnet_zenoh.cli.main import main; rc = main(['run', sys.argv[1], '--trace',"
+            " sys.argv[2]]); print(rc, sorted(m for m in ('zenoh', 'uwsimnet_gli', 'asyncio', 'msgpack')"
+            " if m in sys.modules))")
+    p = subprocess.run([sys.executable, "-c", code, str(TWO), str(tmp_path / "t.jsonl")], capture_output=True,
+                       text=True, cwd=ROOT, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.splitlines()[-1] == "0 []"
+    from uwsimnet_gli.wire import DEFAULT_ENDPOINT
+
+    from uwsimnet_zenoh.cli.zenoh_flags import DEFAULT_CONNECT
+    assert DEFAULT_CONNECT == DEFAULT_ENDPOINT
+
+
+def test_run_parser_alone_parses_as_the_whole() -> None:
+    from uwsimnet_zenoh.cli.main import build_parser
+
+    argv = ["run", "x.xml", "--trace", "t.jsonl", "--seed", "3", "--connect", "tcp/h:1"]
+    assert vars(build_parser("run").parse_args(argv)) == vars(build_parser().parse_args(argv))

@@ -329,8 +329,89 @@ class Accumulator:
 
     def on_event(self, t: float, ev: str, ch: int, dev: str, frame: Any, reason: str | None,
                  fifo: int | None, dist: float | None, implicit: bool = False) -> None:
-        """A tracer listener (trace.events.Tracer.listen): the event as its trace record would say it."""
-        self.event(round(t, 9), ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow,
+        """A tracer listener (trace.events.Tracer.listen): the event as its trace record would say it.
+
+        The same as `event()` on the record's fields (tests/test_online_metrics.py holds them equal); the
+        common cases (enq, tx and rx of a data frame of a known flow with its source, addressee and payload
+        size known) are done here in one call, everything else by `event()`."""
+        t = round(t, 9)
+        if reason is None and not implicit and frame.kind == "data":
+            a = self.accs.get(frame.flow)
+            if a is not None and a.t_first is not None:
+                m = a.m
+                if m.src is not None and m.dst is not None and m.payload is not None:
+                    frames = self.frames
+                    if ev == "enq":
+                        tx = self.devs.tx
+                        key = (ch, frame.src)
+                        if key not in tx:
+                            tx[key] = dev
+                        fkey = (dev, frame.seq)
+                        fr = frames.get(fkey)
+                        if fr is None:
+                            fr = frames[fkey] = _Frame(frame.flow, ch, frame.dst)
+                        if fr.flow is frame.flow or fr.flow == frame.flow:
+                            if t > self.t_end:
+                                self.t_end = t
+                            cnt = self._chan_counts
+                            ck = (ch, ev, None)
+                            cnt[ck] = cnt.get(ck, 0) + 1
+                            a.t_last = t
+                            fr.n_enq += 1
+                            if fr.t_enq is None:
+                                fr.t_enq = t
+                            if a.t_first_enq is None:
+                                a.t_first_enq = t
+                            m.enqueued += 1
+                            m.payload_offered += m.payload
+                            return
+                    elif ev == "tx":
+                        fr = frames.get((dev, frame.seq))
+                        if fr is not None and fr.ch == ch and (ch, frame.src) in self.devs.tx and \
+                                (fr.flow is frame.flow or fr.flow == frame.flow):
+                            if t > self.t_end:
+                                self.t_end = t
+                            cnt = self._chan_counts
+                            ck = (ch, ev, None)
+                            cnt[ck] = cnt.get(ck, 0) + 1
+                            size = frame.size
+                            self._chan_bytes[ch] = self._chan_bytes.get(ch, 0) + size
+                            a.t_last = t
+                            n_tx = fr.n_tx = fr.n_tx + 1
+                            fr.t_tx = t
+                            if n_tx == 1:
+                                m.unique_sent += 1
+                                seq = frame.seq
+                                mx = self.max_tx_seq
+                                if seq > mx.get(dev, -1):
+                                    mx[dev] = seq
+                            m.sent += 1
+                            m.data_bytes_on_air += size
+                            return
+                    elif ev == "rx":
+                        tx_dev = self.devs.tx.get((ch, frame.src))
+                        fr = frames.get((tx_dev, frame.seq)) if tx_dev else None
+                        if fr is not None and (fr.flow is frame.flow or fr.flow == frame.flow):
+                            if t > self.t_end:
+                                self.t_end = t
+                            cnt = self._chan_counts
+                            ck = (ch, ev, None)
+                            cnt[ck] = cnt.get(ck, 0) + 1
+                            a.t_last = t
+                            fr.receiver(dev)[1] += 1
+                            m.delivered += 1
+                            m.payload_delivered += m.payload
+                            t_enq = fr.t_enq
+                            if t_enq is not None:
+                                d = t - t_enq
+                                a.delays.append(d)
+                                prev = a.prev_delay
+                                if prev is not None:
+                                    a.jit_sum += abs(d - prev)
+                                    a.jit_n += 1
+                                a.prev_delay = d
+                            return
+        self.event(t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow,
                    frame.kind, reason, dist is not None, implicit)
 
     def _acc(self, name: str, tx_dev: str, dst: Any) -> _Acc:
@@ -520,17 +601,18 @@ def _settle(frames: dict[tuple[str, int], _Frame], accs: dict[str, _Acc], devs: 
     total = 0
     in_flight: list[InFlight] = []
 
-    def bad(fr_label: str, msg: str) -> None:
+    def bad(fr_label: tuple[str, int, str], msg: str) -> None:
         nonlocal total
         total += 1
         if len(violations) < limit:
-            violations.append(f"{fr_label}: {msg}")
+            tx_dev, seq, flow = fr_label
+            violations.append(f"{tx_dev} seq {seq} (flow {flow}): {msg}")
 
     for (tx_dev, seq), fr in frames.items():
         a = accs[fr.flow]
         m = a.m
         drops = m.drops
-        label = f"{tx_dev} seq {seq} (flow {fr.flow})"
+        label = (tx_dev, seq, fr.flow)        # formatted only for a violation
         rcv = fr.receivers()
         n_tx = fr.n_tx
         any_rx = False

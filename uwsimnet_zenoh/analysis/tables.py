@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
-
-from rich.table import Table
+from typing import TYPE_CHECKING, Any
 
 from ..trace.events import finite
 from .metrics import FlowMetrics
+
+if TYPE_CHECKING:
+    from rich.table import Table
 
 # -- rendering ----------------------------------------------------------------------------------
 _COLUMNS = ("flow", "src", "dst", "enq", "sent", "uniq", "dlvd", "ratio", "thr B/s", "offer B/s", "eff %",
@@ -69,6 +70,8 @@ class FlowTable:
         self.title = title
 
     def _table(self, cols: list[int], title: str | None) -> Table:
+        from rich.table import Table  # noqa: PLC0415 - a terminal only (start-up time of a piped run)
+
         t = Table(title=title)
         for i in cols:
             t.add_column(_COLUMNS[i], justify="left" if i in _LEFT else "right", no_wrap=True, overflow="fold")
@@ -86,6 +89,8 @@ class FlowTable:
             n = len(parts)
             return [self._table(p, f"{self.title} ({k}/{n})" if self.title else None)
                     for k, p in enumerate(parts, 1)]
+        from rich.table import Table  # noqa: PLC0415
+
         out = []
         for r in self.rows:                                 # stacked: metric | value, one table per flow
             t = Table(title=f"{self.title}: {r[0]}" if self.title else r[0], show_header=False)

@@ -7,11 +7,15 @@ import contextlib
 import os
 import re
 import socket
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import UserError
 from ..ros2 import wire as rw
-from ..ros2.bridge import ModemInfo, Options, VehicleInfo, check_poses, parse_pose_input
+
+if TYPE_CHECKING:
+    from ..ros2.bridge import ModemInfo, Options, VehicleInfo
+# ros2.bridge is imported by the functions that use it: `uwsimnet run` builds its parser with
+# add_arguments, and a virtual run needs nothing more of ROS 2 (start-up time)
 
 ROS_PORT = 7447
 ROS_LISTEN = [f"tcp/127.0.0.1:{ROS_PORT}", f"tcp/[::1]:{ROS_PORT}"]
@@ -43,6 +47,8 @@ def enabled(args: Any) -> bool:
 
 
 def options(args: Any) -> Options:
+    from ..ros2.bridge import Options, parse_pose_input  # noqa: PLC0415 - see the imports
+
     domain = args.ros_domain
     if domain is None:
         env = os.environ.get("ROS_DOMAIN_ID", "").strip()
@@ -62,6 +68,8 @@ def options(args: Any) -> Options:
 
 def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
     """The modems and vehicles of a scene as the bridge needs them."""
+    from ..ros2.bridge import ModemInfo, VehicleInfo  # noqa: PLC0415 - see the imports
+
     modems, vehicles = [], []
     for v in scene.vehicles:
         static = v.pose_source == "scene" and len({(p.x, p.y, p.z) for p in v.trajectory}) <= 1
@@ -72,6 +80,8 @@ def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
 
 def check(opts: Options, scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
     """The scene's view, once the options are known to fit it (UserError otherwise), before any session."""
+    from ..ros2.bridge import check_poses  # noqa: PLC0415 - see the imports
+
     modems, vehicles = scene_view(scene)
     try:
         check_poses(opts, vehicles)

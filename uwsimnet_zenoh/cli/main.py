@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from ..app import ros2
 from ..app.checks import check, failed_plugin
 from ..app.virtual import load_scene_file, print_summary, show_metrics, simulate
 from ..errors import UserError, UwsimnetError
-from . import deploy, drivers, experiment, sweep, view
+from . import view
 from .limits import DURATION_MAX, REALTIME_ONLY, SPEED_RANGE, check_numbers
 from .zenoh_flags import add_zenoh_flags
 
@@ -88,6 +87,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                 view.stop_viewer(viewer)
     trace = args.trace or scene.tracing.log_to_file
     if args.view and not trace:                     # the page replays the run's trace after it
+        import tempfile  # noqa: PLC0415 - only here (start-up time)
+
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "trace.jsonl"
             run = simulate(scene, seed=args.seed, duration=args.duration, trace_path=path)
@@ -144,7 +145,13 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: {message} (see {self.prog} -h)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+CORE = ("run", "router", "validate", "report", "plot")
+"""The commands defined here: `uwsimnet run ...` builds only these parsers (the other commands' modules,
+with zenoh, asyncio and msgpack among their imports, are not loaded: a virtual run starts sooner)."""
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line; `command` one of CORE: only the parsers of CORE (for that command)."""
     p = Parser(prog="uwsimnet", description="Underwater network simulator on Zenoh")
     sub = p.add_subparsers(dest="cmd", required=True)
 
@@ -198,14 +205,18 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("-o", "--out", default="figures")
     pl.set_defaults(fn=cmd_plot)
 
-    for add_commands in (drivers.add_commands, experiment.add_commands, sweep.add_commands, deploy.add_commands,
-                         view.add_commands):
-        add_commands(sub)
+    if command not in CORE:
+        from . import deploy, drivers, experiment, sweep  # noqa: PLC0415 - only for their commands (start-up)
+
+        for add_commands in (drivers.add_commands, experiment.add_commands, sweep.add_commands,
+                             deploy.add_commands, view.add_commands):
+            add_commands(sub)
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
     try:
         return args.fn(args)

@@ -4,12 +4,10 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import subprocess
 import sys
 import time
-import webbrowser
 from pathlib import Path
 
 from ..analysis import TraceError, read_trace
@@ -86,6 +84,9 @@ def replay_doc(trace: str, scene_path: str | None) -> dict:
 
 
 def _serve(server, args: argparse.Namespace) -> None:
+    import asyncio  # noqa: PLC0415 - the page only: `uwsimnet run` imports this module (start-up time)
+    import webbrowser  # noqa: PLC0415
+
     from ..view.server import serve_forever
 
     if not 0 <= args.port <= 65535:

@@ -21,10 +21,11 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
-from uwsimnet_gli import wire
-from uwsimnet_gli.wire import DEFAULT_ENDPOINT as DEFAULT_CONNECT
-
 from ..errors import UserError
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+"""uwsimnet_gli.wire.DEFAULT_ENDPOINT (tests/test_cli.py holds them equal), not imported here: the uwsimnet_gli
+package brings zenoh, asyncio and msgpack, which a virtual run does not need (start-up time)."""
 
 ENV = "ZENOH_CONFIG"
 
@@ -82,6 +83,8 @@ def configured_world(args: argparse.Namespace) -> str | None:
     """--world, else the one world the configuration's access control names, else None (discover)."""
     if getattr(args, "world", None):
         return args.world
+    from uwsimnet_gli import wire  # noqa: PLC0415 - zenoh only when needed
+
     w = (access(args) or {}).get("world")
     return w if isinstance(w, str) and wire.is_chunk(w) else None
 
@@ -90,6 +93,8 @@ def check_access(args: argparse.Namespace, program: str, world: str, modems: tup
                  vehicles: tuple[str, ...] = ()) -> None:
     """UserError (one line) if the configuration's access control would drop what `program` (a key of
     `uwsimnet_gli.wire.USES`) declares: refused at once instead of a silent hang."""
+    from uwsimnet_gli import wire  # noqa: PLC0415 - zenoh only when needed
+
     a = access(args)
     refused = wire.access_refusals(a, program, world, modems, vehicles)
     if refused:

@@ -36,6 +36,12 @@ begin at the same instant, but float rounding of (t0 + dur) + delay vs (t0 + del
 overlap by ~1e-16 s, which must not count as a collision."""
 
 
+LIST_SLOTS = 512
+"""Up to this many listener slots the geometry is also kept as Python lists: the per-frame path reads a few
+slots one by one (the addressee, the log's transmissions at one slot), and a list item is a Python float
+read in a few ns where a numpy scalar costs ~100 ns to make and more to add or compare.  The values are the
+same doubles either way (the same additions give the same results), so the choice changes no outcome."""
+
 GEO_CACHE_SLOTS = 8_000_000
 """At most this many (sender, listener) pairs of cached geometry per channel (17 bytes each): every sender
 of a small network, ~800 of 10 000 on one channel (the others' geometry is computed when they send)."""
@@ -46,17 +52,23 @@ class Transmission:
 
     Arrival at slot j is `t0 + delay[j]`, the end `t0 + delay[j] + dur` (the same doubles as the arrays
     `arr` and `end`, which are built only when asked for: the binary rule and carrier sense read the
-    few slots they need from the shared `delay` array of the sender's geometry)."""
+    few slots they need from the shared `delay` array of the sender's geometry, `dl` its list when the
+    channel is small (LIST_SLOTS), else the array itself).  `own` is the sender's slot on this channel if
+    it listens there (half duplex: its own signal occupies its receiver), else -1."""
 
-    __slots__ = ("frame", "sender", "t0", "dur", "delay", "_arr", "_end", "max_end", "dist", "pow", "acq")
+    __slots__ = ("frame", "sender", "t0", "dur", "delay", "dl", "own", "_arr", "_end", "max_end", "dist", "pow",
+                 "acq")
 
     def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, delay: np.ndarray,
-                 dist: np.ndarray, max_end: float) -> None:
+                 dist: np.ndarray, max_end: float, dl: list[float] | np.ndarray | None = None,
+                 own: int = -1) -> None:
         self.frame = frame
         self.sender = sender
         self.t0 = t0
         self.dur = dur
         self.delay = delay
+        self.dl = delay if dl is None else dl
+        self.own = own
         self._arr: np.ndarray | None = None
         self._end: np.ndarray | None = None
         self.dist = dist
@@ -142,8 +154,10 @@ class Channel:
         return self.min_prop_s + self.prop_s_per_m * max_distance
 
     # -- the per-frame path --------------------------------------------------------------------
-    def _geometry(self, sender: Modem, now: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """Distance, propagation delay (inf where out of range) and reach from `sender` to every slot.
+    def _geometry(self, sender: Modem, now: float) -> tuple:
+        """Distance, propagation delay (inf where out of range) and reach from `sender` to every slot, the
+        longest finite delay, then the same three as Python lists on a small channel (LIST_SLOTS; else the
+        arrays again).
 
         With no vehicle moving these only change with membership, so they are cached per sender."""
         poses = self.poses
@@ -176,7 +190,11 @@ class Channel:
             delay[sender.rx_slot] = 0.0
             dist[sender.rx_slot] = 0.0
         # the longest finite delay (the own slot's 0 included): reach of the transmission
-        geo = (dist, delay, ok, float(np.max(delay, where=ok, initial=0.0)))
+        max_delay = float(np.max(delay, where=ok, initial=0.0))
+        if len(veh) <= LIST_SLOTS:
+            geo = (dist, delay, ok, max_delay, dist.tolist(), delay.tolist(), ok.tolist())
+        else:
+            geo = (dist, delay, ok, max_delay, dist, delay, ok)
         if not poses.moving:
             cache = self._geo_cache
             if (len(cache) + 1) * len(veh) > GEO_CACHE_SLOTS:    # bounded: forget the oldest senders
@@ -197,23 +215,24 @@ class Channel:
         if dur > self._longest:
             self._longest = dur
 
-        dist, delay, ok, max_delay = self._geometry(sender, now)
-        tx = Transmission(frame, sender, now, dur, delay, dist, now + dur + max_delay)
+        dist, delay, ok, max_delay, distl, dl, okl = self._geometry(sender, now)
+        own = sender.rx_slot if sender.rx_channel is self else -1
+        tx = Transmission(frame, sender, now, dur, delay, dist, now + dur + max_delay, dl, own)
         sinr = self.sinr
         if sinr:
             tx.pow = self._powers(sender, dist)
         log.append(tx)
 
-        own = sender.rx_slot if sender.rx_channel is self else -1
         if frame.dst != BROADCAST and not self._overhearing:    # the common case: one addressee, no listener
             j = self._by_addr.get(frame.dst, -1)
             if j < 0 or j == own:
                 return
-            if not ok[j]:
+            if not okl[j]:
                 self._unreachable(sender, frame, j, now, dist)
                 return
-            per = float(sender.error.per(dist[j:j + 1], frame.size)[0])
-            end = float(delay[j]) + now + dur       # = (delay + now + dur)[j], the same double
+            err = sender.error
+            per = 0.0 if getattr(err, "lossless", False) is True else float(err.per(dist[j:j + 1], frame.size)[0])
+            end = float(dl[j]) + now + dur          # = (delay + now + dur)[j], the same double
             if sinr:
                 self.sched.at(end, self._reception_end_sinr, tx, j, sender.loss_random(), per, True)
             else:
@@ -257,16 +276,15 @@ class Channel:
         modem = self.listeners[j]
         if modem is None:
             return
-        t0, dur = tx.t0, tx.dur
-        a = tx.delay[j] + t0
-        e = a + dur
+        a = tx.dl[j] + tx.t0
+        e = a + tx.dur - TOUCH        # the end, less the touch margin (the same doubles as ever)
         col = False
         for g in self.log:
             if g is not tx:
-                gd = g.delay
+                gd = g.dl
                 if j < len(gd):
                     ga = gd[j] + g.t0
-                    if ga < e - TOUCH and a < ga + g.dur - TOUCH:
+                    if ga < e and a < ga + g.dur - TOUCH:
                         col = True
                         break
         frame = tx.frame
@@ -365,27 +383,34 @@ class Channel:
     # -- carrier sense -------------------------------------------------------------------------
     def _heard(self, g: Transmission, slot: int, t: float) -> bool:
         """Is `g` energy at `slot` at time t?  (A modem does not sense its own transmission.)"""
-        if slot >= len(g.delay):
+        if slot >= len(g.dl):
             return False
-        a = g.delay[slot] + g.t0
-        return (a <= t < a + g.dur - TOUCH
-                and not (g.sender.rx_channel is self and g.sender.rx_slot == slot))
+        a = g.dl[slot] + g.t0
+        return a <= t < a + g.dur - TOUCH and g.own != slot
 
     def busy(self, slot: int) -> bool:
         t = self.sched.now
         for g in self.log:
-            d = g.delay
+            d = g.dl
             if slot < len(d):
                 a = d[slot] + g.t0
-                if a <= t < a + g.dur - TOUCH and not (g.sender.rx_channel is self and g.sender.rx_slot == slot):
+                if a <= t < a + g.dur - TOUCH and g.own != slot:
                     return True
         return False
 
     def busy_until(self, slot: int) -> float:
         """When the energy heard at `slot` now ends, following overlaps (now if the channel is idle)."""
         t = self.sched.now
+        log = self.log
         while True:
-            ends = [float(g.delay[slot] + g.t0 + g.dur) for g in self.log if self._heard(g, slot, t)]
-            if not ends:
+            last = None
+            for g in log:
+                d = g.dl
+                if slot < len(d) and g.own != slot:
+                    a = d[slot] + g.t0
+                    end = a + g.dur
+                    if a <= t < end - TOUCH and (last is None or end > last):
+                        last = end
+            if last is None:
                 return t
-            t = max(ends)
+            t = float(last)

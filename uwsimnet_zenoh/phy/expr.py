@@ -447,6 +447,11 @@ class Expr:
         return hash(self.text)
 
 
+_COMPILED: dict[str, Expr] = {}
+"""Expressions compiled so far, by text (an Expr is immutable: a scene of N devices with the same error
+rate compiles it once, not twice per device; bounded, see compile_expr)."""
+
+
 def compile_expr(text: str) -> Expr:
     """Parse `text` into an `Expr`, or raise `ExprError` naming the first offending token.
 
@@ -455,6 +460,17 @@ def compile_expr(text: str) -> Expr:
     """
     if not isinstance(text, str):
         raise TypeError(f"expression must be a str, not {type(text).__name__}")
+    hit = _COMPILED.get(text)
+    if hit is not None:
+        return hit
+    expr = _compile(text)
+    if len(_COMPILED) >= 4096:
+        _COMPILED.clear()
+    _COMPILED[text] = expr
+    return expr
+
+
+def _compile(text: str) -> Expr:
     if len(text) > MAX_LENGTH:
         raise ExprError(f"expression too long: {len(text)} characters, limit {MAX_LENGTH}"
                         f" (excess starts at column {MAX_LENGTH + 1})", MAX_LENGTH + 1)

@@ -134,33 +134,36 @@ class Modem:
         yet); it is traced as enq then dropped at the transmitter with that reason.  `msg`: the sender
         device's description of the message (Frame.msg), carried to the receivers untouched."""
         now = self.sched.now
-        frame = Frame(self.address, dst, self._seq, self.on_air_size(payload), payload, data=data,
+        size = payload + self.header_bytes if self.framing is None else self.on_air_size(payload)
+        frame = Frame(self.address, dst, self._seq, size, payload, data=data,
                       flow=flow, t_enq=now, tag=tag, dev=self.id, msg=msg)
         self._seq += 1
         self.counters["enq"] += 1
-        direct = not self.fifo and self.mac.ready()
+        mac = self.mac
+        direct = not self.fifo and mac.ready()
         if refuse is None:
             if self.closed:
                 refuse = "removed"
-            elif frame.size > self.cfg.max_frame_bytes or (
+            elif size > self.cfg.max_frame_bytes or (
                     self.framing is not None and self.framing.check_payload(payload) is not None):
                 refuse = "size"
-            elif dst != BROADCAST and not getattr(self.mac, "implicit_broadcast", False) \
+            elif dst != BROADCAST and not getattr(mac, "implicit_broadcast", False) \
                     and not self.tx_channel.has_address(dst):
                 refuse = "noaddr"           # nobody on the channel has that address: say so now
         if refuse is not None:
             self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
             self.drop(frame, refuse)
-        elif not direct and self.fifo_bytes + frame.size > self.fifo_cap:
+        elif not direct and self.fifo_bytes + size > self.fifo_cap:
             self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
             self.drop(frame, "fifo")
         else:
-            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame,
-                             fifo=self.fifo_bytes + (0 if direct else frame.size))
+            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, None,
+                             self.fifo_bytes + (0 if direct else size))
             self.fifo.append(frame)
-            self.fifo_bytes += frame.size
-            self.status(frame, "queued")
-            self.mac.on_queue()
+            self.fifo_bytes += size
+            if self.on_status:
+                self.status(frame, "queued")
+            mac.on_queue()
         return frame
 
     # -- what the MAC may do (MacContext) -------------------------------------------------------
@@ -201,10 +204,10 @@ class Modem:
         now = self.sched.now
         frame.t_tx = now
         self.counters["tx"] += 1
-        self.tracer.emit(now, "tx", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
+        self.tracer.emit(now, "tx", self.tx_channel.id, self.id, frame, None, self.fifo_bytes)
         dur = frame.size * 8.0 / self.bitrate
         self.tx_channel.transmit(self, frame, dur)
-        self.sched.after(dur, self._tx_end, frame)
+        self.sched.at(now + dur, self._tx_end, frame)       # = after(dur): the same double
 
     def _tx_end(self, frame: Frame) -> None:
         self.phy_busy = False
@@ -242,9 +245,9 @@ class Modem:
         that gave up after its retries says `failed`)."""
         frame.final = reason
         self.counters["drop"] += 1
-        self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason,
-                         fifo=self.fifo_bytes)
-        self.status(frame, event, reason)
+        self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason, self.fifo_bytes)
+        if self.on_status:
+            self.status(frame, event, reason)
 
     def status(self, frame: Frame, event: str, reason: str | None = None) -> None:
         for cb in self.on_status:

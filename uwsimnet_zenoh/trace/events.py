@@ -163,10 +163,10 @@ class JsonlSink:
         t = round(t, 9)
         if dist is not None:
             dist = round(float(dist), 3)
-            if not _plain(dist):
+            if not (1e-4 <= dist < 1e15 or dist == 0.0):       # _plain, inlined (per event)
                 self(record(t, ev, ch, dev, frame, reason, fifo, dist, implicit))
                 return
-        if not _plain(t):
+        if not (1e-4 <= t < 1e15 or t == 0.0):
             self(record(t, ev, ch, dev, frame, reason, fifo, dist, implicit))
             return
         buf = self._buf
