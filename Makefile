@@ -18,10 +18,12 @@ $(STAMP): pyproject.toml gli_clients/python/pyproject.toml
 paper: $(STAMP)
 	$(BIN)/uwsimnet experiment phy-layer --out out/phy-layer
 
-## The test suite (what CI runs)
+## The test suite (what CI runs): two workers (pytest-xdist), each test file on one of them (module fixtures,
+## routers and namespaces set up once per file); `make test TESTFLAGS=` runs it in one process
+TESTFLAGS ?= -n 2 --dist loadfile
 test: $(STAMP)
 	$(BIN)/ruff check uwsimnet_zenoh tests bench
-	$(BIN)/python -m pytest -q -p no:cacheprovider
+	$(BIN)/python -m pytest -q -p no:cacheprovider $(TESTFLAGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

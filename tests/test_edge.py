@@ -243,6 +243,30 @@ def test_outbox_is_bounded_ordered_and_never_blocks():
     assert got == [0, 1, 2, 3] and out.sent == 4
 
 
+def test_outbox_counts_and_warns_the_puts_that_waited_on_a_consumer(monkeypatch, caplog):
+    """A put that waits STALL_S or more (Zenoh gives no other sign of a subscriber that does not read) is
+    counted by kind with the longest wait, and warned; quick puts are not.  The clock is the test's."""
+    from uwsimnet_zenoh.bus import outbox as ob
+
+    now = [100.0]
+    monkeypatch.setattr(ob, "_clock", lambda: now[0])
+
+    def put(waited: float) -> None:
+        now[0] += waited
+
+    out = Outbox("m1", capacity=8)
+    with caplog.at_level("WARNING", logger="uwsimnet.bus.outbox"):
+        for kind, waited in (("rx", 0.001), ("rx", 2.0), ("status", 0.49), ("status", 0.5), ("rx", 0.7)):
+            out.put(put, waited, kind)
+        assert out.close(5.0)
+    st = out.stats()
+    assert st["stalled"] == {"rx": 2, "status": 1} and st["stalled_max"] == pytest.approx(2.0)
+    assert st["sent"] == 5 and st["dropped"] == {}
+    warned = [r.getMessage() for r in caplog.records if "waited" in r.getMessage()]
+    assert warned == ["m1: a rx put waited 2.0 s: a subscriber does not read (what it has not taken may be lost;"
+                      " 1 such put(s) so far)"]
+
+
 def test_lane_round_robin_bookkeeping():
     lane = Lane("m", capacity=2)
     assert lane.offer("a") is True               # idle: the caller schedules the lane

@@ -6,8 +6,9 @@ the stopped subscriber's buffers were full every put waited up to 5 s (Zenoh's w
 modem with it (an unrelated app's frames took 4.9 s and over 8 s instead of 69 ms).  Now the busy modem's
 outbox fills and its losses are counted on its `info` ("edge") and in the run summary; the pair's frames
 keep their modelled delay.  Bounds: the median within 50 ms (tests/test_broker_e2e.py's WALL_SLACK; the
-bench's p99 is ~1 ms on a quiet machine, this one has 2 shared cores and a 1 MB/s flood running) and every
-frame within 1 s: far below the stall it guards against, which lasts as long as the consumer is stopped."""
+bench's p99 is ~1 ms on a quiet machine, this one has 2 shared cores and a 4 MB/s flood running) and every
+frame within 1 s: far below the stalls it guards against (5 s with the engine putting; 1.3-1.9 s for every
+app when the router's puts to the stopped one waited Zenoh's default 5 s, see docs/runtime.md)."""
 
 from __future__ import annotations
 
@@ -52,15 +53,20 @@ with zenoh.open(conf) as s:
 
 def _fast_device(dev: str, mac: int) -> str:
     return f"""<CustomCommsDevice><dccommsId>{dev}</dccommsId><mac>{mac}</mac><txChannelId>1</txChannelId>
-      <rxChannelId>1</rxChannelId><bitrate>20000000</bitrate><txFifoSize>100000</txFifoSize>
-      <maxDistance>2000</maxDistance></CustomCommsDevice>"""
+      <rxChannelId>1</rxChannelId><bitrate>200000000</bitrate><txFifoSize>1000000</txFifoSize>
+      <maxDistance>2000</maxDistance><maxFrameBytes>65536</maxFrameBytes></CustomCommsDevice>"""
+
+
+N_SENDS = 28
+"""The pair's frames, one every 0.4 s from 2 s after the stop: past Zenoh's default `wait_before_close` (5 s
+after the stopped consumer's buffers are full, about 8.5 s after the stop here) and its 10 s lease."""
 
 
 def test_a_stopped_subscriber_costs_only_its_modem(tmp_path, procs):  # noqa: F811
     world = "stall"
     scene = tmp_path / "stall.xml"
-    flood = ("<flow><name>flood</name><src>src-m</src><dst>4</dst><size>2000</size><interval>0.002</interval>"
-             "</flow>")                       # 1 MB/s of rx for busy-m's subscribers
+    flood = ("<flow><name>flood</name><src>src-m</src><dst>4</dst><size>64000</size><interval>0.016</interval>"
+             "</flow>")                       # 4 MB/s of rx for busy-m's subscribers, in few frames
     scene.write_text(scene_xml(world=world, channels=(0, 1), flows=flood, vehicles="".join([
         vehicle_xml("a", (0, 0, 0), device_xml("a-m", 1)),
         vehicle_xml("b", (300, 0, 0), device_xml("b-m", 2)),
@@ -75,7 +81,7 @@ def test_a_stopped_subscriber_costs_only_its_modem(tmp_path, procs):  # noqa: F8
     procs.append(stalled)
     assert stalled.next_line(15).strip() == "ready"
     deadline = time.monotonic() + 10
-    while int(stalled.next_line(5)) < 200:          # it does receive the flood
+    while int(stalled.next_line(5)) < 50:           # it does receive the flood
         assert time.monotonic() < deadline
     app = App(b.endpoint, world)
     procs.append(app)
@@ -87,14 +93,14 @@ def test_a_stopped_subscriber_costs_only_its_modem(tmp_path, procs):  # noqa: F8
     try:
         time.sleep(2.0)                             # its buffers fill; the broker's puts to it block
         sends = []
-        for i in range(10):
+        for i in range(N_SENDS):                    # until 2 + 28 x 0.4 = 13.2 s after the stop
             sends.append(app.call(cmd="send", id="a-m", dst=2, data_hex=bytes([i]).hex() * 20))
             time.sleep(0.4)
-        frames = app.call(cmd="recv", id="b-m", n=10, timeout=15)["frames"]
+        frames = app.call(cmd="recv", id="b-m", n=N_SENDS, timeout=15)["frames"]
         busy = app.call(cmd="info", id="busy-m")
     finally:
         stalled.p.send_signal(signal.SIGCONT)
-    assert [bytes.fromhex(f["data_hex"]) for f in frames] == [bytes([i]) * 20 for i in range(10)]
+    assert [bytes.fromhex(f["data_hex"]) for f in frames] == [bytes([i]) * 20 for i in range(N_SENDS)]
     want = modelled(300, 20, info) + 0.001          # + the intrinsic tx delay
     late = [f["wall"] - s["wall"] - want for f, s in zip(frames, sends, strict=True)]
     # the bug this guards against made every frame of the pair ~5 s late (the broker's put blocked behind the
@@ -102,14 +108,19 @@ def test_a_stopped_subscriber_costs_only_its_modem(tmp_path, procs):  # noqa: F8
     # now and then, so: the typical frame within the realtime slack, none anywhere near the blocked put
     assert statistics.median(abs(x) for x in late) < WALL_SLACK, late
     assert max(abs(x) for x in late) < 1.0, late
-    # the stopped consumer's losses: counted on busy-m's info, none on the pair's
-    assert busy["edge"]["dropped"].get("rx", 0) > 0, busy["edge"]
+    # the stopped consumer: its put waited (at most 2 s, bus.session.WAIT_BEFORE_CLOSE_US, then Zenoh gives it up),
+    # said on busy-m's info, in a warning and in the summary; nothing lost nor stalled on the pair's modems
+    assert busy["edge"]["stalled"].get("rx", 0) >= 1 and 0.5 <= busy["edge"]["stalled_max"] < 3.0, busy["edge"]
     assert busy["edge"]["queued"] <= busy["edge"]["capacity"]
-    assert app.call(cmd="info", id="b-m")["edge"]["dropped"] == {}
+    for m in ("a-m", "b-m"):
+        edge = app.call(cmd="info", id=m)["edge"]
+        assert edge["dropped"] == {} and edge["stalled"] == {}, edge
     with contextlib.suppress(subprocess.TimeoutExpired):
         stalled.stop(signal.SIGKILL, timeout=5)
     procs.remove(stalled)
     assert b.stop(signal.SIGINT) == 0, b.output()
     out = b.output()
-    assert "lost at the edge: busy-m:" in out and "rx" in out.split("lost at the edge: busy-m:")[1].splitlines()[0]
+    assert "busy-m: a rx put waited" in out and "a subscriber does not read" in out
+    assert "stalled at the edge: busy-m:" in out and " rx put(s) waited up to " in out
+    assert "stalled at the edge: a-m" not in out and "stalled at the edge: b-m" not in out
     assert "Traceback" not in out

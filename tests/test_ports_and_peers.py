@@ -102,3 +102,18 @@ def test_gli_send_with_nobody_listening_names_the_endpoint():
     p = subprocess.run([PY, "-m", "uwsimnet_gli.cli", "-e", ep, "send", "a-m", "2", "x"], capture_output=True,
                        text=True, timeout=60, cwd=ROOT)
     assert p.returncode == 2 and "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_routers_give_a_blocked_put_up_after_2_s_unless_the_file_says(tmp_path):
+    """docs/runtime.md: with Zenoh's 5 s a stopped consumer froze every put of the router until its lease."""
+    import json
+
+    from uwsimnet_zenoh.bus.session import WAIT_BEFORE_CLOSE_US, make_config
+
+    key = "transport/link/tx/queue/congestion_control/block/wait_before_close"
+    assert WAIT_BEFORE_CLOSE_US == 2_000_000
+    assert json.loads(make_config("router").get_json(key)) == 2_000_000
+    assert json.loads(make_config("client").get_json(key)) == 5_000_000        # Zenoh's default: a client's link
+    f = tmp_path / "z.json5"                                                    # to its router is left alone
+    f.write_text("{transport: {link: {tx: {queue: {congestion_control: {block: {wait_before_close: 7000000}}}}}}}")
+    assert json.loads(make_config("router", config_file=str(f)).get_json(key)) == 7_000_000

@@ -31,7 +31,15 @@ from pathlib import Path
 from typing import Any
 
 from ..bus.router import StopOnSignal
-from ..bus.session import DEFAULT_ENDPOINT, BusError, locators, make_config, open_raw, tune_threads
+from ..bus.session import (
+    DEFAULT_ENDPOINT,
+    WAIT_BEFORE_CLOSE_US,
+    BusError,
+    locators,
+    make_config,
+    open_raw,
+    tune_threads,
+)
 from ..errors import UserError
 from ..scene.model import Scene
 from . import ros2
@@ -390,3 +398,8 @@ def _summary(trace: str, s: dict[str, Any], net: Any) -> None:
             parts.append(f"{e['refused']} tx refused (ingress lane full, status dropped fifo)")
         console.print(f"lost at the edge: {dev}: {', '.join(parts)} (a consumer did not keep up)", markup=False,
                       soft_wrap=True)
+    for dev, e in sorted((d, e) for d, e in edge.items() if e.get("stalled")):
+        parts = ", ".join(f"{n} {kind}" for kind, n in sorted(e["stalled"].items()))
+        console.print(f"stalled at the edge: {dev}: {parts} put(s) waited up to {e['stalled_max']:.1f} s (a"
+                      " subscriber did not read: what it had not taken is lost; a router gives up a put after"
+                      f" {WAIT_BEFORE_CLOSE_US / 1e6:g} s)", markup=False, soft_wrap=True)

@@ -590,12 +590,14 @@ class Broker:
         for dev, lane in self.lanes.items():
             ob = self.outboxes.get(dev)
             out[dev] = {"lost": dict(ob.dropped) if ob is not None else {}, "refused": lane.refused,
+                        "stalled": dict(ob.stalled) if ob is not None else {},
+                        "stalled_max": ob.stalled_max if ob is not None else 0.0,
                         "ingress_n": lane.n, "ingress_mean": lane.delay_sum / lane.n if lane.n else 0.0,
                         "ingress_max": lane.delay_max}
         for name in ("*trace", "*misc"):
             ob = self.outboxes.get(name)
-            if ob is not None and ob.dropped:
-                out[name] = {"lost": dict(ob.dropped)}
+            if ob is not None and (ob.dropped or ob.stalled):
+                out[name] = {"lost": dict(ob.dropped), "stalled": dict(ob.stalled), "stalled_max": ob.stalled_max}
         return out
 
     # -- queries ---------------------------------------------------------------------------------

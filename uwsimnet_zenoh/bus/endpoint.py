@@ -22,8 +22,8 @@ BLOCK = zenoh.CongestionControl.BLOCK
 """rx frames and status events wait for room rather than being dropped by Zenoh: both come at modem rates,
 and with *drop* Zenoh gives up after `wait_before_drop` (1 ms) without a free batch, which a loaded machine
 hits (the app then missed frames the trace says it received).  *Block* waits at most `wait_before_close`
-(5 s), on the outbox's thread, never on the engine's or a driver's: what a stuck consumer costs is that
-modem's outbox filling up, counted."""
+(2 s on our routers, bus/session.py), on the outbox's thread, never on the engine's or a driver's: what a
+stuck consumer costs is that modem's outbox, its long puts counted (`stalled`) and its overflow (`dropped`)."""
 
 
 class ModemEndpoint:

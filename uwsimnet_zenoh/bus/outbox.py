@@ -26,6 +26,7 @@ from typing import Any
 
 log = logging.getLogger("uwsimnet.bus.outbox")
 _sleep = time.sleep
+_clock = time.monotonic
 
 OUTBOX_CAPACITY = 1024
 """Messages an outbox holds before it drops (per modem: rx and status together)."""
@@ -35,6 +36,10 @@ INGRESS_WARN_S = 0.050
 """Ingress delay (wall s, put to engine) above which the broker warns (rate-limited)."""
 LAZY_MAX = 32
 """Non-urgent messages an outbox holds before it wakes its thread anyway (see Outbox.put)."""
+STALL_S = 0.5
+"""A put that takes this long (wall s) waited on a consumer that does not read: counted (`stalled`) and warned.
+Zenoh says nothing of what it then gives up (a BLOCK put waits at most `wait_before_close`, 2 s on our routers:
+bus/session.py), so the wait itself is what the edge reports."""
 
 
 class Outbox:
@@ -61,6 +66,9 @@ class Outbox:
         self.dropped: Counter[str] = Counter()
         """Messages refused because the outbox was full, by kind (rx, status, trace, ...)."""
         self.high_water = 0
+        self.stalled: Counter[str] = Counter()
+        """Puts that waited STALL_S or more (a consumer not reading; what it did not take may be lost), by kind."""
+        self.stalled_max = 0.0
         self._thread = threading.Thread(target=self._run, name=f"uwsimnet-out-{name}", daemon=True)
         self._thread.start()
 
@@ -108,7 +116,8 @@ class Outbox:
 
     def stats(self) -> dict[str, Any]:
         return {"queued": len(self._q), "sent": self.sent, "failed": self.failed,
-                "dropped": dict(self.dropped), "high_water": self.high_water, "capacity": self.capacity}
+                "dropped": dict(self.dropped), "high_water": self.high_water, "capacity": self.capacity,
+                "stalled": dict(self.stalled), "stalled_max": self.stalled_max}
 
     def _run(self) -> None:
         q = self._q
@@ -121,12 +130,22 @@ class Outbox:
                 if not q:
                     return
                 fn, arg, kind = q.popleft()
+            t0 = _clock()
             try:
                 fn(arg)
                 self.sent += 1
             except Exception as e:  # noqa: BLE001 - a put that fails costs only itself
                 self.failed += 1
                 log.debug("%s: %s put failed: %s", self.name, kind, e)
+            waited = _clock() - t0
+            if waited >= STALL_S:
+                self.stalled[kind] += 1
+                if waited > self.stalled_max:
+                    self.stalled_max = waited
+                if sum(self.stalled.values()) in (1, 10, 100, 1000):
+                    log.warning("%s: a %s put waited %.1f s: a subscriber does not read (what it has not taken"
+                                " may be lost; %d such put(s) so far)", self.name, kind, waited,
+                                sum(self.stalled.values()))
 
     def close(self, timeout: float = 1.0) -> bool:
         """Stop taking calls, let the queued ones go out (up to `timeout` s); True if all went."""

@@ -23,12 +23,24 @@ from ..errors import UwsimnetError
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where `uwsimnet run` listens by default, and where clients connect by default."""
+WAIT_BEFORE_CLOSE_US = 2_000_000
+"""How long a router lets a BLOCK put wait on a link that does not drain before it closes that link (Zenoh's
+`transport/link/tx/queue/congestion_control/block/wait_before_close`, default 5 s).  With Zenoh's 5 s, a
+consumer stopped while a busy modem's rx fills its buffers froze *every* put of the router for ~1.5-1.9 s,
+from the 5 s wait running out (~8.5 s after the stop) to the 10 s lease closing that consumer (bench_realtime
+`--stall`, 4 of 4 runs; tests/test_edge_e2e.py); with 1-2 s, 0 of 4.  A consumer that cannot take a message for
+2 s once its buffers are full is cut off, as it would be at 5 s, and the other links never wait."""
+ZENOH_WAIT_BEFORE_CLOSE_US = 5_000_000
+"""Zenoh's default of the above (a configuration file that sets another value keeps it)."""
 SWITCH_INTERVAL = 0.0005
 """sys.setswitchinterval for processes with a realtime engine thread (5 ms -> 0.5 ms thread switches)."""
 
 
 class BusError(UwsimnetError, RuntimeError):
     """A Zenoh session could not be opened (bad endpoint, port in use, no router to connect to)."""
+
+
+_WAIT_BEFORE_CLOSE = "transport/link/tx/queue/congestion_control/block/wait_before_close"
 
 
 def _json(v: Any) -> str:
@@ -48,6 +60,8 @@ def make_config(mode: str, *, listen: Sequence[str] = (), connect: Sequence[str]
     settings: dict[str, Any] = {"mode": mode, "scouting/multicast/enabled": False}
     if mode == "router":
         settings["adminspace/enabled"] = True          # lets us read back the locators we listen on
+        if json.loads(conf.get_json(_WAIT_BEFORE_CLOSE)) == ZENOH_WAIT_BEFORE_CLOSE_US:
+            settings[_WAIT_BEFORE_CLOSE] = WAIT_BEFORE_CLOSE_US
     if listen:
         settings["listen/endpoints"] = list(listen)
     if connect:
