@@ -286,12 +286,17 @@ def _meta_flows(meta: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
     return {k: v for k, v in flows.items() if isinstance(v, Mapping)} if isinstance(flows, Mapping) else {}
 
 
-class Accumulator:
-    """The metrics of a run, accumulated one event at a time (O(1) per event): the one definition behind
-    `analyse()` on a trace and the online summary of `uwsimnet run` (a tracer listener, `on_event`), so
-    the two give the same numbers for the same run.
+_PENDING = 4096
+"""Records `Accumulator.add` takes at a time."""
 
-        acc = Accumulator(net.meta()); net.tracer.listen(acc.on_event); net.run(); a = acc.result()
+
+class Accumulator:
+    """The metrics of a run, accumulated as the events come (O(1) per event, `rows()`): the one definition
+    behind `analyse()` on a trace and the online summary of `uwsimnet run` (a batch consumer of the tracer,
+    `on_batch`), so the two give the same numbers for the same run.
+
+        acc = Accumulator(net.meta()); net.tracer.consume(acc.on_batch); net.run(); net.tracer.flush()
+        a = acc.result()
     """
 
     def __init__(self, meta: Mapping[str, Any] | None = None) -> None:
@@ -314,105 +319,51 @@ class Accumulator:
         self.t_end = -math.inf
         self.ended: float | None = None     # an `end` record: the run's actual end (stopped early, realtime)
         self._header = devs.header
+        self._pending: list[tuple[Any, ...]] = []     # records of `add()` not yet taken
 
     def add(self, rec: Mapping[str, Any]) -> None:
-        """One checked trace record (analysis.read); records of other kinds are skipped."""
+        """One checked trace record (analysis.read); records of other kinds are skipped.  Records are
+        taken in batches (`result()` takes the rest)."""
         ev = rec["ev"]
         if ev not in EVENTS:
             if ev == "end" and is_num(rec.get("t")) and math.isfinite(rec["t"]):
                 self.ended = float(rec["t"])
             return
         reason, flow, kind = rec.get("reason"), rec.get("flow"), rec.get("kind", "data")
-        self.event(rec["t"], ev, rec["ch"], rec["dev"], rec["src"], rec.get("dst"), rec["seq"], rec["size"],
-                   flow if isinstance(flow, str) else None, kind if isinstance(kind, str) else "data",
-                   reason if isinstance(reason, str) else None, "dist" in rec, bool(rec.get("implicit")))
+        pending = self._pending
+        pending.append((rec["t"], ev, rec["ch"], rec["dev"], rec["src"], rec.get("dst"), rec["seq"], rec["size"],
+                        flow if isinstance(flow, str) else None, kind if isinstance(kind, str) else "data",
+                        reason if isinstance(reason, str) else None, None, True if "dist" in rec else None,
+                        bool(rec.get("implicit"))))
+        if len(pending) >= _PENDING:
+            self._drain()
+
+    def _drain(self) -> None:
+        pending = self._pending
+        if pending:
+            self._pending = []
+            self.rows(pending, [r[0] for r in pending])
+
+    def on_batch(self, b: Any) -> None:
+        """A batch consumer (trace.events.Tracer.consume): the events of a `Batch`, their records' times
+        shared with the trace writers."""
+        self._drain()
+        self.rows(b.rows, b.t9)
 
     def on_event(self, t: float, ev: str, ch: int, dev: str, frame: Any, reason: str | None,
                  fifo: int | None, dist: float | None, implicit: bool = False) -> None:
-        """A tracer listener (trace.events.Tracer.listen): the event as its trace record would say it.
+        """An event listener (trace.events.Tracer.listen): the event as its trace record would say it (one
+        row of `rows()`; `on_batch` is the fast way)."""
+        self._drain()
+        self.rows([(t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind, reason,
+                    fifo, dist, implicit)], [round(t, 9)])
 
-        The same as `event()` on the record's fields (tests/test_online_metrics.py holds them equal); the
-        common cases (enq, tx and rx of a data frame of a known flow with its source, addressee and payload
-        size known) are done here in one call, everything else by `event()`."""
-        t = round(t, 9)
-        if reason is None and not implicit and frame.kind == "data":
-            a = self.accs.get(frame.flow)
-            if a is not None and a.t_first is not None:
-                m = a.m
-                if m.src is not None and m.dst is not None and m.payload is not None:
-                    frames = self.frames
-                    if ev == "enq":
-                        tx = self.devs.tx
-                        key = (ch, frame.src)
-                        if key not in tx:
-                            tx[key] = dev
-                        fkey = (dev, frame.seq)
-                        fr = frames.get(fkey)
-                        if fr is None:
-                            fr = frames[fkey] = _Frame(frame.flow, ch, frame.dst)
-                        if fr.flow is frame.flow or fr.flow == frame.flow:
-                            if t > self.t_end:
-                                self.t_end = t
-                            cnt = self._chan_counts
-                            ck = (ch, ev, None)
-                            cnt[ck] = cnt.get(ck, 0) + 1
-                            a.t_last = t
-                            fr.n_enq += 1
-                            if fr.t_enq is None:
-                                fr.t_enq = t
-                            if a.t_first_enq is None:
-                                a.t_first_enq = t
-                            m.enqueued += 1
-                            m.payload_offered += m.payload
-                            return
-                    elif ev == "tx":
-                        fr = frames.get((dev, frame.seq))
-                        if fr is not None and fr.ch == ch and (ch, frame.src) in self.devs.tx and \
-                                (fr.flow is frame.flow or fr.flow == frame.flow):
-                            if t > self.t_end:
-                                self.t_end = t
-                            cnt = self._chan_counts
-                            ck = (ch, ev, None)
-                            cnt[ck] = cnt.get(ck, 0) + 1
-                            size = frame.size
-                            self._chan_bytes[ch] = self._chan_bytes.get(ch, 0) + size
-                            a.t_last = t
-                            n_tx = fr.n_tx = fr.n_tx + 1
-                            fr.t_tx = t
-                            if n_tx == 1:
-                                m.unique_sent += 1
-                                seq = frame.seq
-                                mx = self.max_tx_seq
-                                if seq > mx.get(dev, -1):
-                                    mx[dev] = seq
-                            m.sent += 1
-                            m.data_bytes_on_air += size
-                            return
-                    elif ev == "rx":
-                        tx_dev = self.devs.tx.get((ch, frame.src))
-                        fr = frames.get((tx_dev, frame.seq)) if tx_dev else None
-                        if fr is not None and (fr.flow is frame.flow or fr.flow == frame.flow):
-                            if t > self.t_end:
-                                self.t_end = t
-                            cnt = self._chan_counts
-                            ck = (ch, ev, None)
-                            cnt[ck] = cnt.get(ck, 0) + 1
-                            a.t_last = t
-                            fr.receiver(dev)[1] += 1
-                            m.delivered += 1
-                            m.payload_delivered += m.payload
-                            t_enq = fr.t_enq
-                            if t_enq is not None:
-                                d = t - t_enq
-                                a.delays.append(d)
-                                prev = a.prev_delay
-                                if prev is not None:
-                                    a.jit_sum += abs(d - prev)
-                                    a.jit_n += 1
-                                a.prev_delay = d
-                            return
-        self.event(t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow,
-                   frame.kind, reason, dist is not None, implicit)
+    def event(self, t: float, ev: str, ch: Any, dev: str, src: int, dst: int | None, seq: int, size: int,
+              flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool = False) -> None:
+        """One frame event with its record's fields (`dst` None: the record had none)."""
+        self._drain()
+        self.rows([(t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, None, True if has_dist else None,
+                    implicit)], [t])
 
     def _acc(self, name: str, tx_dev: str, dst: Any) -> _Acc:
         a = self.accs.get(name)
@@ -420,98 +371,122 @@ class Accumulator:
             a = self.accs[name] = _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if is_int(dst) else None))
         return a
 
-    def event(self, t: float, ev: str, ch: Any, dev: str, src: int, dst: int | None, seq: int, size: int,
-              flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool = False) -> None:
-        """One frame event (`dst` None: the record had none).  The hot path of a run's summary: kept flat."""
-        if t > self.t_end:
-            self.t_end = t
-        if implicit and ev == "rx":
-            return                  # handed to a modem that was not the addressee (no MAC): not a delivery
-        cnt = self._chan_counts
-        ck = (ch, ev, reason)
-        cnt[ck] = cnt.get(ck, 0) + 1
-        devs = self.devs
-        if ev == "drop":
-            at_tx, tx_dev = devs._drop(ch, src, dev, reason, has_dist)  # type: ignore[arg-type]
-        elif ev == "rx":
-            at_tx = False
-            tx_dev = devs.tx.get((ch, src)) or devs.tx_dev(ch, src)
-        else:
-            at_tx = True
-            tx_dev = dev
-            key = (ch, src)
-            if key not in devs.tx:
-                devs.tx[key] = dev
-            if ev == "tx":
-                self._chan_bytes[ch] = self._chan_bytes.get(ch, 0) + size
-        if kind != "data":
-            if ev == "tx":          # control frames only count as bytes on air of the flow they serve
-                self._chan_ctrl[ch] = self._chan_ctrl.get(ch, 0) + 1
-                a = self._acc(_ctrl_flow(flow, seq, src, dst, ch, tx_dev, devs, self.frames), tx_dev, None)
-                a.m.ctrl_sent += 1
-                a.m.ctrl_bytes_on_air += size
-            return
-
+    def rows(self, rows: Iterable[tuple[Any, ...]], t9: Iterable[float]) -> None:
+        """The one definition of the metrics: frame events in order, each a row (t, ev, ch, dev, src, dst,
+        seq, size, flow, kind, reason, fifo, dist, implicit) (trace.events.Row; `dist` only tested for
+        None, `fifo` unused) with `t9` its record's time.  Both the online summary (`on_batch`) and a trace
+        (`add`, `analyse`) come here.  The hot path of a run's summary: one flat loop, state in locals."""
         frames = self.frames
-        key = (tx_dev, seq)
-        fr = frames.get(key)
-        if fr is None:
-            fr = frames[key] = _Frame(flow if flow is not None else tx_dev, ch, -1 if dst is None else dst)
-        a = self.accs.get(fr.flow)
-        if a is None:
-            a = self._acc(fr.flow, tx_dev, fr.dst)
-        m = a.m
-        if a.t_first is None:
-            a.t_first = t
-        a.t_last = t
-        if m.src is None:
-            m.src = tx_dev
-        if m.dst is None and is_int(fr.dst) and fr.dst >= 0:
-            m.dst = fr.dst
+        accs = self.accs
+        devs = self.devs
+        dtx = devs.tx
+        cnt = self._chan_counts
+        cbytes = self._chan_bytes
+        header = self._header
+        max_tx_seq = self.max_tx_seq
+        t_end = self.t_end
+        try:
+            for (_, ev, ch, dev, src, dst, seq, size, flow, kind, reason, _fifo, dist, implicit), t in zip(
+                    rows, t9, strict=True):
+                if t > t_end:
+                    t_end = t
+                if implicit and ev == "rx":
+                    continue        # handed to a modem that was not the addressee (no MAC): not a delivery
+                ck = (ch, ev, reason)
+                cnt[ck] = cnt.get(ck, 0) + 1
+                if ev == "rx":
+                    at_tx = False
+                    tx_dev = dtx.get((ch, src)) or devs.tx_dev(ch, src)
+                elif ev == "drop":
+                    known = dtx.get((ch, src))
+                    if known is not None:
+                        at_tx = dev == known
+                    else:
+                        at_tx = reason in TX_REASONS or (reason not in RX_REASONS and dist is None)
+                    if at_tx:
+                        if known is None:
+                            dtx[(ch, src)] = dev
+                        tx_dev = dev
+                    else:
+                        tx_dev = known if known is not None else devs.tx_dev(ch, src)
+                else:
+                    at_tx = True
+                    tx_dev = dev
+                    key = (ch, src)
+                    if key not in dtx:
+                        dtx[key] = dev
+                    if ev == "tx":
+                        cbytes[ch] = cbytes.get(ch, 0) + size
+                if kind != "data":
+                    if ev == "tx":      # control frames only count as bytes on air of the flow they serve
+                        self._chan_ctrl[ch] = self._chan_ctrl.get(ch, 0) + 1
+                        a = self._acc(_ctrl_flow(flow, seq, src, dst, ch, tx_dev, devs, frames), tx_dev, None)
+                        a.m.ctrl_sent += 1
+                        a.m.ctrl_bytes_on_air += size
+                    continue
 
-        if ev == "enq":
-            fr.n_enq += 1
-            if fr.t_enq is None:
-                fr.t_enq = t
-            if a.t_first_enq is None:
-                a.t_first_enq = t
-            m.enqueued += 1
-            p = m.payload
-            m.payload_offered += p if p is not None else max(0, size - self._header.get(tx_dev, 0))
-        elif ev == "tx":
-            n_tx = fr.n_tx = fr.n_tx + 1
-            fr.t_tx = t
-            if n_tx == 1:
-                m.unique_sent += 1
-                if seq > self.max_tx_seq.get(tx_dev, -1):
-                    self.max_tx_seq[tx_dev] = seq
-            m.sent += 1
-            m.data_bytes_on_air += size
-        elif ev == "rx":
-            fr.receiver(dev)[1] += 1
-            m.delivered += 1
-            p = m.payload
-            m.payload_delivered += p if p is not None else max(0, size - self._header.get(tx_dev, 0))
-            t_enq = fr.t_enq
-            if t_enq is not None:
-                d = t - t_enq
-                a.delays.append(d)
-                prev = a.prev_delay
-                if prev is not None:
-                    a.jit_sum += abs(d - prev)
-                    a.jit_n += 1
-                a.prev_delay = d
-        else:   # drop
-            a.drop_events[reason] = a.drop_events.get(reason, 0) + 1  # type: ignore[index]
-            if at_tx:
-                fr.n_txdrop += 1
-                fr.txdrop = reason
-                fr.txdrop_at = fr.n_tx
-            else:
-                r = fr.receiver(dev)
-                r[2] += 1
-                r[3] = reason
-                r[4] = fr.n_tx
+                fkey = (tx_dev, seq)
+                fr = frames.get(fkey)
+                if fr is None:
+                    fr = frames[fkey] = _Frame(flow if flow is not None else tx_dev, ch, -1 if dst is None else dst)
+                a = accs.get(fr.flow)
+                if a is None:
+                    a = self._acc(fr.flow, tx_dev, fr.dst)
+                m = a.m
+                if a.t_first is None:
+                    a.t_first = t
+                a.t_last = t
+                if m.src is None:
+                    m.src = tx_dev
+                if m.dst is None and is_int(fr.dst) and fr.dst >= 0:
+                    m.dst = fr.dst
+
+                if ev == "enq":
+                    fr.n_enq += 1
+                    if fr.t_enq is None:
+                        fr.t_enq = t
+                    if a.t_first_enq is None:
+                        a.t_first_enq = t
+                    m.enqueued += 1
+                    p = m.payload
+                    m.payload_offered += p if p is not None else max(0, size - header.get(tx_dev, 0))
+                elif ev == "tx":
+                    n_tx = fr.n_tx = fr.n_tx + 1
+                    fr.t_tx = t
+                    if n_tx == 1:
+                        m.unique_sent += 1
+                        if seq > max_tx_seq.get(tx_dev, -1):
+                            max_tx_seq[tx_dev] = seq
+                    m.sent += 1
+                    m.data_bytes_on_air += size
+                elif ev == "rx":
+                    fr.receiver(dev)[1] += 1
+                    m.delivered += 1
+                    p = m.payload
+                    m.payload_delivered += p if p is not None else max(0, size - header.get(tx_dev, 0))
+                    t_enq = fr.t_enq
+                    if t_enq is not None:
+                        d = t - t_enq
+                        a.delays.append(d)
+                        prev = a.prev_delay
+                        if prev is not None:
+                            a.jit_sum += abs(d - prev)
+                            a.jit_n += 1
+                        a.prev_delay = d
+                else:   # drop
+                    de = a.drop_events
+                    de[reason] = de.get(reason, 0) + 1
+                    if at_tx:
+                        fr.n_txdrop += 1
+                        fr.txdrop = reason
+                        fr.txdrop_at = fr.n_tx
+                    else:
+                        r = fr.receiver(dev)
+                        r[2] += 1
+                        r[3] = reason
+                        r[4] = fr.n_tx
+        finally:
+            self.t_end = t_end
 
     def _channels(self) -> dict[Any, ChannelMetrics]:
         out: dict[Any, ChannelMetrics] = {}
@@ -535,6 +510,7 @@ class Accumulator:
     def result(self, *, horizon: float = DEFAULT_HORIZON, end: float | None = None, limit: int = 1000) -> Analysis:
         """Per-flow metrics, channel counters and the conservation check of the events so far.  Settles
         the frames: call it once, at the end."""
+        self._drain()
         meta = self.meta
         if end is None and self.ended is not None:
             end = max(self.ended, self.t_end)
@@ -563,12 +539,10 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
     if is_columnar(src):      # whole columns: no JSON, no per-record dict, no per-record checks
         m, cols = read_columns(src)  # type: ignore[arg-type]
         acc = Accumulator(m if meta is None else meta)
-        event = acc.event
-        for t, ev, ch, dev, s, d, seq, size, flow, kind, reason, dist, imp in zip(
-                *(cols[k] for k in ("t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind", "reason",
-                                    "dist", "implicit")), strict=True):
-            if ev in EVENTS:
-                event(t, ev, ch, dev, s, d, seq, size, flow, kind, reason, dist is not None, imp)
+        rows = [r for r in zip(*(cols[k] for k in ("t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind",
+                                                     "reason", "fifo", "dist", "implicit")), strict=True)
+                if r[1] in EVENTS]
+        acc.rows(rows, [r[0] for r in rows])
         return acc.result(horizon=horizon, end=end, limit=limit)
     meta, events = open_source(src, meta)
     acc = Accumulator(meta)
