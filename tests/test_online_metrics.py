@@ -168,3 +168,113 @@ def test_online_summary_skips_implicit_receptions_as_the_report_does(tmp_path):
     assert '"implicit":true' in (tmp_path / "t.jsonl").read_text()
     same_analysis(run.analysis, analyse(tmp_path / "t.jsonl"))
     assert run.analysis.flows["s0"].delivered <= run.analysis.flows["s0"].sent
+
+
+# -- the batched metrics against the event-by-event definition of before (tests/metrics_reference.py) --------
+def _as_ref(a) -> tuple:
+    """An Analysis (batched or reference) as plain data."""
+    return ({k: f.to_dict() for k, f in a.flows.items()}, list(a.flows),
+            {k: c.to_dict() for k, c in a.channels.items()},
+            list(a.conservation), a.conservation.total, a.conservation.frames, a.conservation.end,
+            [(x.dev, x.seq, x.flow, x.state, x.t_enq, x.t_tx) for x in a.conservation.in_flight])
+
+
+def _records(sc, seed=None, duration=None) -> tuple[dict, list[dict]]:
+    net = Network(sc, seed=seed, duration=duration)
+    recs: list[dict] = []
+    net.tracer.add(recs.append)
+    net.run()
+    return net.meta(), recs
+
+
+def _agree(meta: dict, recs: list[dict], **kw) -> tuple:
+    """The reference, the batched Accumulator and its event-by-event path on the same records: all equal."""
+    import metrics_reference as ref
+
+    from uwsimnet_zenoh.analysis import Accumulator
+
+    want = _as_ref(ref.analyse([meta, *recs], **kw))
+    batched = Accumulator(meta)
+    for r in recs:
+        batched.add(r)
+    assert _as_ref(batched.result(**kw)) == want
+    serial = Accumulator(meta)
+    serial.vectorised = False
+    for r in recs:
+        serial.add(r)
+    assert _as_ref(serial.result(**kw)) == want
+    return want
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_batched_metrics_equal_the_event_by_event_definition_on_every_scene(scene):
+    sc = load_scene_file(str(ROOT / scene))
+    meta, recs = _records(sc, seed=3, duration=min(sc.simulation.duration or 40.0, 40.0))
+    _agree(meta, recs)
+    for cut in (0.3, 0.7):      # a trace cut short: frames in flight, outcomes missing
+        _agree(meta, recs[:int(len(recs) * cut)], horizon=1.0)
+
+
+@pytest.mark.parametrize("mac, shared, fifo", [("none", True, 0), ("none", False, 0), ("aloha", True, 2000),
+                                                ("sfama", True, 2000), ("none", True, 500)])
+def test_batched_metrics_equal_the_event_by_event_definition_on_busy_channels(mac, shared, fifo):
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(12, 1.5, 1500.0, 300.0, mac=mac, shared=shared, fifo=fifo, seed=7)
+    meta, recs = _records(sc)
+    assert len(recs) > 3 * 4096            # several batches
+    _agree(meta, recs)
+
+
+def test_online_batches_equal_the_event_by_event_definition():
+    """The run's own batches (Tracer.consume, times rounded per batch) against the reference on its records."""
+    import metrics_reference as ref
+
+    from test_aloha_theory import sensors_scene
+
+    from uwsimnet_zenoh.analysis import Accumulator
+
+    sc = sensors_scene(16, 1.0, 1000.0, 500.0, mac="none", fifo=0, seed=2)
+    net = Network(sc)
+    recs: list[dict] = []
+    net.tracer.add(recs.append)
+    acc = Accumulator(net.meta())
+    net.tracer.consume(acc.on_batch)
+    net.run()
+    net.tracer.flush()
+    assert _as_ref(acc.result()) == _as_ref(ref.analyse([net.meta(), *recs]))
+    assert acc.batches["vector"] >= 3
+    assert net.tracer.count("tx") == sum(r["ev"] == "tx" for r in recs)
+
+
+def test_batched_metrics_report_the_same_violations():
+    """Records lost, repeated or delivered twice: the same conservation messages, in the same order."""
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(6, 1.2, 300.0, 300.0, mac="aloha", fifo=2000, seed=3)
+    meta, recs = _records(sc)
+    bad = [r for i, r in enumerate(recs) if i % 97 != 5]                  # some records lost
+    bad += [dict(r) for r in recs[::211]]                                 # some repeated at the end
+    want = _agree(meta, bad, limit=10)
+    assert want[3] and want[4] > 10                                      # violations, truncated
+
+
+def test_batched_metrics_equal_the_event_by_event_definition_hypothesis():
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from test_aloha_theory import sensors_scene
+
+    @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(n=st.integers(1, 20), load=st.floats(0.2, 3.0), mac=st.sampled_from(["none", "aloha", "sfama"]),
+           shared=st.booleans(), fifo=st.sampled_from([0, 200, 2000]), seed=st.integers(0, 2**16),
+           cut=st.floats(0.2, 1.0), lose=st.integers(0, 40))
+    def check(n, load, mac, shared, fifo, seed, cut, lose):
+        sc = sensors_scene(n, load, 200.0, 300.0, mac=mac, shared=shared, fifo=fifo, seed=seed)
+        meta, recs = _records(sc)
+        recs = recs[:int(len(recs) * cut)]
+        if lose:
+            recs = [r for i, r in enumerate(recs) if i % (lose + 7) != 3]
+        _agree(meta, recs, horizon=5.0)
+
+    check()

@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import math
 from array import array
+from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field
+from itertools import compress
 from typing import Any
 
 import numpy as np
@@ -224,44 +226,102 @@ class Analysis:
 
 
 # -- the pass -----------------------------------------------------------------------------------
-class _Frame:
-    __slots__ = ("flow", "ch", "dst", "t_enq", "n_enq", "n_tx", "t_tx", "n_txdrop", "txdrop",
-                 "txdrop_at", "rcv")
+_EV = {"enq": 0, "tx": 1, "rx": 2, "drop": 3}
+_PENDING = 4096
+"""Records `Accumulator.add` takes at a time."""
 
-    def __init__(self, flow: str, ch: Any, dst: int) -> None:
-        self.flow = flow
-        self.ch = ch
-        self.dst = dst
-        self.t_enq: float | None = None
-        self.n_enq = 0
-        self.n_tx = 0
-        self.t_tx: float | None = None
-        self.n_txdrop = 0
-        self.txdrop: str | None = None
-        self.txdrop_at = 0          # n_tx when the transmitter dropped it
-        # per receiver: [dccommsId, rx events, drop events, last drop reason, n_tx at the last drop];
-        # one receiver (unicast) is kept as that list, several (broadcast) as a dict by dccommsId
-        self.rcv: list[Any] | dict[str, list[Any]] | None = None
 
-    def receiver(self, dev: str) -> list[Any]:
-        rcv = self.rcv
-        if rcv is None:
-            r = self.rcv = [dev, 0, 0, None, 0]
-            return r
-        if isinstance(rcv, list):
-            if rcv[0] == dev:
-                return rcv
-            rcv = self.rcv = {rcv[0]: rcv}
-        r = rcv.get(dev)
+class _Frames:
+    """The state of every data frame seen, one column per field, indexed by frame id (ids in the order of
+    the frames' first events): what the conservation check and the delays need.  `r_*` is its receiver
+    (unicast: at most one); `r_dev` is -2 once several receivers have had an outcome, and then `multi[id]`
+    holds them all in order, each [dccommsId, rx events, drop events, last drop reason, n_tx at it]."""
+
+    INT = ("flow", "dst", "n_enq", "n_tx", "n_txdrop", "txdrop", "txdrop_at", "r_dev", "r_nrx", "r_ndrop",
+           "r_reason", "r_at")
+    FLOAT = ("t_enq", "t_tx")
+    INIT = {"txdrop": -1, "r_dev": -1, "r_reason": -1}
+
+    flow: np.ndarray
+    dst: np.ndarray
+    n_enq: np.ndarray
+    n_tx: np.ndarray
+    n_txdrop: np.ndarray
+    txdrop: np.ndarray
+    txdrop_at: np.ndarray
+    r_dev: np.ndarray
+    r_nrx: np.ndarray
+    r_ndrop: np.ndarray
+    r_reason: np.ndarray
+    r_at: np.ndarray
+    t_enq: np.ndarray           # NaN: no enq yet
+    t_tx: np.ndarray            # NaN: never transmitted
+
+    def __init__(self) -> None:
+        self.index: dict[tuple[str, int], int] = {}
+        self.keys: list[tuple[str, int]] = []
+        self.ch: list[Any] = []
+        self.multi: dict[int, dict[str, list[Any]]] = {}
+        self.n = 0
+        self.cap = 0
+        self._grow(1024)
+
+    def _grow(self, need: int) -> None:
+        cap = max(need, 2 * self.cap)
+        n = self.n
+        for name in self.INT + self.FLOAT:
+            a = np.full(cap, np.nan if name in self.FLOAT else self.INIT.get(name, 0),
+                        np.float64 if name in self.FLOAT else np.int64)
+            if n:
+                a[:n] = getattr(self, name)[:n]
+            setattr(self, name, a)
+        self.cap = cap
+
+    def new(self, key: tuple[str, int], flow: int, ch: Any, dst: int) -> int:
+        i = self.n
+        if i >= self.cap:
+            self._grow(i + 1)
+        self.index[key] = i
+        self.keys.append(key)
+        self.ch.append(ch)
+        self.flow[i] = flow
+        self.dst[i] = dst
+        self.n = i + 1
+        return i
+
+    def receivers(self, i: int, dev_names: list[str], reason_names: list[str]) -> list[list[Any]]:
+        """[[dccommsId, rx events, drop events, last drop reason, n_tx at it], ...] of frame `i`."""
+        rd = int(self.r_dev[i])
+        if rd == -1:
+            return []
+        if rd == -2:
+            return list(self.multi[i].values())
+        rr = int(self.r_reason[i])
+        return [[dev_names[rd], int(self.r_nrx[i]), int(self.r_ndrop[i]), reason_names[rr] if rr >= 0 else None,
+                 int(self.r_at[i])]]
+
+    def receiver(self, i: int, dev: str, did: int, reason_names: list[str]) -> list[Any] | None:
+        """The receiver record of `dev` on frame `i` when it has several (else None: use the r_* columns,
+        `r_dev` set to `did` if it had none)."""
+        rd = int(self.r_dev[i])
+        if rd == -1:
+            self.r_dev[i] = did
+            return None
+        if rd == did:
+            return None
+        if rd != -2:        # a second receiver: all of them as records from now on
+            m = self.multi[i] = {}
+            rr = int(self.r_reason[i])
+            m[self._dev_name(rd)] = [self._dev_name(rd), int(self.r_nrx[i]), int(self.r_ndrop[i]),
+                                     reason_names[rr] if rr >= 0 else None, int(self.r_at[i])]
+            self.r_dev[i] = -2
+        m = self.multi[i]
+        r = m.get(dev)
         if r is None:
-            r = rcv[dev] = [dev, 0, 0, None, 0]
+            r = m[dev] = [dev, 0, 0, None, 0]
         return r
 
-    def receivers(self) -> list[list[Any]]:
-        rcv = self.rcv
-        if rcv is None:
-            return []
-        return [rcv] if isinstance(rcv, list) else list(rcv.values())
+    _dev_name: Any = None       # set by the Accumulator: dev id -> dccommsId
 
 
 class _Acc:
@@ -286,18 +346,31 @@ def _meta_flows(meta: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
     return {k: v for k, v in flows.items() if isinstance(v, Mapping)} if isinstance(flows, Mapping) else {}
 
 
-_PENDING = 4096
-"""Records `Accumulator.add` takes at a time."""
+def _first_last(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(distinct keys, index of each one's first row, index of its last row)."""
+    u, first = np.unique(keys, return_index=True)
+    _, rlast = np.unique(keys[::-1], return_index=True)
+    return u, first, len(keys) - 1 - rlast
 
 
 class Accumulator:
-    """The metrics of a run, accumulated as the events come (O(1) per event, `rows()`): the one definition
-    behind `analyse()` on a trace and the online summary of `uwsimnet run` (a batch consumer of the tracer,
-    `on_batch`), so the two give the same numbers for the same run.
+    """The metrics of a run, accumulated as the events come (`rows()`): the one definition behind `analyse()`
+    on a trace and the online summary of `uwsimnet run` (a batch consumer of the tracer, `on_batch`), so the
+    two give the same numbers for the same run.
 
         acc = Accumulator(net.meta()); net.tracer.consume(acc.on_batch); net.run(); net.tracer.flush()
         a = acc.result()
+
+    A batch of events is taken at once with numpy (`_vector`: per-frame state in columns, counts by
+    bincount, the order-dependent parts, such as the transmissions a frame had when a drop happened and the
+    delays of a flow in order, from stable sorts) when it is made of data frames with at most one receiver
+    each; a batch with control frames or broadcast receptions at several receivers is taken event by event
+    (`_serial`).  Both give the same state (tests/test_online_metrics.py holds them to the event-by-event
+    definition of before, on every scene).
     """
+
+    vectorised = True
+    """False: every batch event by event (the reference path)."""
 
     def __init__(self, meta: Mapping[str, Any] | None = None) -> None:
         meta = dict(meta or {})
@@ -305,22 +378,62 @@ class Accumulator:
         self.devs = devs = DeviceMap(meta)
         self.mflows = mflows = _meta_flows(meta)
         self.accs: dict[str, _Acc] = {}
+        self._flows: list[_Acc] = []        # by flow id
+        self._fid: dict[str, int] = {}
         for name, f in mflows.items():
             size = f.get("size")
             fm = FlowMetrics(name=name, src=f.get("src") if isinstance(f.get("src"), str) else None,
                              dst=f.get("dst") if is_int(f.get("dst")) else None,
                              payload=size if is_int(size) else None)
-            self.accs[name] = _Acc(fm)
-        self.frames: dict[tuple[str, int], _Frame] = {}
+            self._new_acc(name, _Acc(fm))
+        self.f = _Frames()
+        self.f._dev_name = self._dev_names_get
         self.max_tx_seq: dict[str, int] = {}
         self._chan_counts: dict[tuple[Any, str, str | None], int] = {}
         self._chan_bytes: dict[Any, int] = {}
         self._chan_ctrl: dict[Any, int] = {}
+        self._rid: dict[str, int] = {}
+        self._reasons: list[str] = []
+        self._did: dict[str, int] = {}
+        self._devnames: list[str] = []
         self.t_end = -math.inf
         self.ended: float | None = None     # an `end` record: the run's actual end (stopped early, realtime)
         self._header = devs.header
         self._pending: list[tuple[Any, ...]] = []     # records of `add()` not yet taken
+        self.batches = {"vector": 0, "serial": 0}      # how the batches were taken
 
+    # -- ids --
+    def _new_acc(self, name: str, a: _Acc) -> int:
+        i = len(self._flows)
+        self._flows.append(a)
+        self._fid[name] = i
+        self.accs[name] = a
+        return i
+
+    def _acc_id(self, name: str, tx_dev: str, dst: Any) -> int:
+        i = self._fid.get(name)
+        if i is None:
+            i = self._new_acc(name, _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if is_int(dst) else None)))
+        return i
+
+    def _reason_id(self, reason: str) -> int:
+        i = self._rid.get(reason)
+        if i is None:
+            i = self._rid[reason] = len(self._reasons)
+            self._reasons.append(reason)
+        return i
+
+    def _dev_id(self, dev: str) -> int:
+        i = self._did.get(dev)
+        if i is None:
+            i = self._did[dev] = len(self._devnames)
+            self._devnames.append(dev)
+        return i
+
+    def _dev_names_get(self, i: int) -> str:
+        return self._devnames[i]
+
+    # -- input --
     def add(self, rec: Mapping[str, Any]) -> None:
         """One checked trace record (analysis.read); records of other kinds are skipped.  Records are
         taken in batches (`result()` takes the rest)."""
@@ -348,7 +461,7 @@ class Accumulator:
         """A batch consumer (trace.events.Tracer.consume): the events of a `Batch`, their records' times
         shared with the trace writers."""
         self._drain()
-        self.rows(b.rows, b.t9)
+        self.rows(b.rows, b.t9, b.columns())
 
     def on_event(self, t: float, ev: str, ch: int, dev: str, frame: Any, reason: str | None,
                  fifo: int | None, dist: float | None, implicit: bool = False) -> None:
@@ -365,25 +478,35 @@ class Accumulator:
         self.rows([(t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, None, True if has_dist else None,
                     implicit)], [t])
 
-    def _acc(self, name: str, tx_dev: str, dst: Any) -> _Acc:
-        a = self.accs.get(name)
-        if a is None:
-            a = self.accs[name] = _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if is_int(dst) else None))
-        return a
+    def rows(self, rows: list[tuple[Any, ...]], t9: list[float], cols: list[tuple[Any, ...]] | None = None) -> None:
+        """Frame events in order, each a row (t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, fifo,
+        dist, implicit) (trace.events.Row; `dist` only tested for None, `fifo` unused) with `t9` its record's
+        time; `cols`: the rows as columns, if at hand.  Both the online summary (`on_batch`) and a trace
+        (`add`, `analyse`) come here."""
+        if not rows:
+            return
+        if self.vectorised and len(rows) >= 64:
+            if cols is None:
+                cols = list(zip(*rows, strict=True))
+            if self._vector(rows, t9, cols):
+                self.batches["vector"] += 1
+                return
+        self.batches["serial"] += 1
+        self._serial(rows, t9)
 
-    def rows(self, rows: Iterable[tuple[Any, ...]], t9: Iterable[float]) -> None:
-        """The one definition of the metrics: frame events in order, each a row (t, ev, ch, dev, src, dst,
-        seq, size, flow, kind, reason, fifo, dist, implicit) (trace.events.Row; `dist` only tested for
-        None, `fifo` unused) with `t9` its record's time.  Both the online summary (`on_batch`) and a trace
-        (`add`, `analyse`) come here.  The hot path of a run's summary: one flat loop, state in locals."""
-        frames = self.frames
-        accs = self.accs
+    # -- event by event --
+    def _serial(self, rows: Iterable[tuple[Any, ...]], t9: Iterable[float]) -> None:
+        """The definition, one event at a time."""
+        F = self.f
+        index = F.index
+        flows = self._flows
         devs = self.devs
         dtx = devs.tx
         cnt = self._chan_counts
         cbytes = self._chan_bytes
         header = self._header
         max_tx_seq = self.max_tx_seq
+        reasons = self._reasons
         t_end = self.t_end
         try:
             for (_, ev, ch, dev, src, dst, seq, size, flow, kind, reason, _fifo, dist, implicit), t in zip(
@@ -420,39 +543,45 @@ class Accumulator:
                 if kind != "data":
                     if ev == "tx":      # control frames only count as bytes on air of the flow they serve
                         self._chan_ctrl[ch] = self._chan_ctrl.get(ch, 0) + 1
-                        a = self._acc(_ctrl_flow(flow, seq, src, dst, ch, tx_dev, devs, frames), tx_dev, None)
-                        a.m.ctrl_sent += 1
-                        a.m.ctrl_bytes_on_air += size
+                        m = flows[self._acc_id(self._ctrl_flow(flow, seq, src, dst, ch, tx_dev), tx_dev, None)].m
+                        m.ctrl_sent += 1
+                        m.ctrl_bytes_on_air += size
                     continue
 
                 fkey = (tx_dev, seq)
-                fr = frames.get(fkey)
-                if fr is None:
-                    fr = frames[fkey] = _Frame(flow if flow is not None else tx_dev, ch, -1 if dst is None else dst)
-                a = accs.get(fr.flow)
-                if a is None:
-                    a = self._acc(fr.flow, tx_dev, fr.dst)
+                i = index.get(fkey)
+                if i is None:
+                    name = flow if flow is not None else tx_dev
+                    fdst = -1 if dst is None else dst
+                    fl = self._acc_id(name, tx_dev, fdst)
+                    i = F.new(fkey, fl, ch, fdst)
+                else:
+                    fl = int(F.flow[i])
+                a = flows[fl]
                 m = a.m
                 if a.t_first is None:
                     a.t_first = t
                 a.t_last = t
                 if m.src is None:
                     m.src = tx_dev
-                if m.dst is None and is_int(fr.dst) and fr.dst >= 0:
-                    m.dst = fr.dst
+                if m.dst is None:
+                    fdst = int(F.dst[i])
+                    if fdst >= 0:
+                        m.dst = fdst
 
                 if ev == "enq":
-                    fr.n_enq += 1
-                    if fr.t_enq is None:
-                        fr.t_enq = t
+                    F.n_enq[i] += 1
+                    if math.isnan(F.t_enq[i]):
+                        F.t_enq[i] = t
                     if a.t_first_enq is None:
                         a.t_first_enq = t
                     m.enqueued += 1
                     p = m.payload
                     m.payload_offered += p if p is not None else max(0, size - header.get(tx_dev, 0))
                 elif ev == "tx":
-                    n_tx = fr.n_tx = fr.n_tx + 1
-                    fr.t_tx = t
+                    n_tx = int(F.n_tx[i]) + 1
+                    F.n_tx[i] = n_tx
+                    F.t_tx[i] = t
                     if n_tx == 1:
                         m.unique_sent += 1
                         if seq > max_tx_seq.get(tx_dev, -1):
@@ -460,12 +589,16 @@ class Accumulator:
                     m.sent += 1
                     m.data_bytes_on_air += size
                 elif ev == "rx":
-                    fr.receiver(dev)[1] += 1
+                    r = F.receiver(i, dev, self._dev_id(dev), reasons)
+                    if r is None:
+                        F.r_nrx[i] += 1
+                    else:
+                        r[1] += 1
                     m.delivered += 1
                     p = m.payload
                     m.payload_delivered += p if p is not None else max(0, size - header.get(tx_dev, 0))
-                    t_enq = fr.t_enq
-                    if t_enq is not None:
+                    t_enq = float(F.t_enq[i])
+                    if not math.isnan(t_enq):
                         d = t - t_enq
                         a.delays.append(d)
                         prev = a.prev_delay
@@ -477,17 +610,320 @@ class Accumulator:
                     de = a.drop_events
                     de[reason] = de.get(reason, 0) + 1
                     if at_tx:
-                        fr.n_txdrop += 1
-                        fr.txdrop = reason
-                        fr.txdrop_at = fr.n_tx
+                        F.n_txdrop[i] += 1
+                        F.txdrop[i] = self._reason_id(reason)
+                        F.txdrop_at[i] = F.n_tx[i]
                     else:
-                        r = fr.receiver(dev)
-                        r[2] += 1
-                        r[3] = reason
-                        r[4] = fr.n_tx
+                        r = F.receiver(i, dev, self._dev_id(dev), reasons)
+                        if r is None:
+                            F.r_ndrop[i] += 1
+                            F.r_reason[i] = self._reason_id(reason)
+                            F.r_at[i] = F.n_tx[i]
+                        else:
+                            r[2] += 1
+                            r[3] = reason
+                            r[4] = int(F.n_tx[i])
         finally:
             self.t_end = t_end
 
+    def _ctrl_flow(self, flow: str | None, seq: int, src: int, dst: int | None, ch: Any, tx_dev: str) -> str:
+        """The flow a control frame serves: its `flow`, else the data frame it is about (an RTS names the
+        data frame's (src, seq, dst); a CTS/ACK answers with src and dst swapped), else its transmitter."""
+        if flow is not None:
+            return flow
+        F = self.f
+        i = F.index.get((tx_dev, seq))
+        if i is not None:
+            fdst = int(F.dst[i])
+            if fdst in (dst, BROADCAST):
+                return self._flows[int(F.flow[i])].m.name
+        if is_int(dst) and dst != BROADCAST:
+            i = F.index.get((self.devs.tx_dev(ch, dst), seq))
+            if i is not None:
+                fdst = int(F.dst[i])
+                if fdst in (src, BROADCAST):
+                    return self._flows[int(F.flow[i])].m.name
+        return tx_dev
+
+    # -- a batch at once --
+    def _vector(self, rows: list[tuple[Any, ...]], t9: list[float], cols: list[tuple[Any, ...]]) -> bool:
+        """The batch with numpy, if it is made of data frames whose receptions and receiver-side drops are
+        at one receiver per frame (also across batches); else False, nothing changed."""
+        (_, evs, chs, devl, srcs, dsts, seqs, sizes, flowl, kinds, reasonl, _fifo, dists, imps) = cols
+        if not (len(set(kinds)) == 1 and kinds[0] == "data"):
+            return False
+        n = len(rows)
+        F = self.f
+        devs = self.devs
+        dtx = devs.tx
+        evc = np.fromiter(map(_EV.__getitem__, evs), np.int8, n)
+        impl = np.fromiter(map(bool, imps), bool, n)
+        keep = ~(impl & (evc == 2))
+        keys = list(zip(chs, srcs, strict=True))
+        known = list(map(dtx.get, keys))
+        # transmitter and side of every kept event; (ch, src) pairs not known before the batch are learnt
+        # in order, event by event (they change nothing else)
+        dev_a = np.array(devl, dtype=object)
+        known_a = np.array(known, dtype=object)
+        at_tx = (evc <= 1) | ((evc == 3) & (dev_a == known_a))
+        tx_dev = np.where(at_tx, dev_a, known_a)
+        unknown = np.flatnonzero(keep & (known_a == None)).tolist()  # noqa: E711 - elementwise
+        if unknown:
+            dist_none = [dists[i] is None for i in unknown]
+            learnt: dict[tuple[Any, int], str] = {}
+            for i, dn in zip(unknown, dist_none, strict=True):
+                k = keys[i]
+                e = evs[i]
+                kn = learnt.get(k)
+                if kn is None:
+                    kn = dtx.get(k)
+                if e == "rx":
+                    a_tx = False
+                    td = kn or devs.tx_dev(*k)
+                elif e == "drop":
+                    r = reasonl[i]
+                    a_tx = devl[i] == kn if kn is not None else (r in TX_REASONS or (r not in RX_REASONS and dn))
+                    if a_tx:
+                        if kn is None:
+                            learnt[k] = devl[i]
+                        td = devl[i]
+                    else:
+                        td = kn if kn is not None else devs.tx_dev(*k)
+                else:
+                    a_tx = True
+                    td = devl[i]
+                    if kn is None:
+                        learnt[k] = td
+                at_tx[i] = a_tx
+                tx_dev[i] = td
+        else:
+            learnt = {}
+        kept = np.flatnonzero(keep)       # not the implicit receptions: they only count for the time
+        k_ev = evc[kept]
+        k_txd = tx_dev[kept].tolist()
+        k_seq = [seqs[i] for i in kept.tolist()] if len(kept) < n else list(seqs)
+        fkeys = list(zip(k_txd, k_seq, strict=True))
+        index = F.index
+        ids_l = list(map(index.get, fkeys))
+        # receivers: at most one per frame, the one it already has if any
+        recv = (k_ev == 2) | ((k_ev == 3) & ~at_tx[kept])
+        new_pos = [j for j, x in enumerate(ids_l) if x is None]
+        if recv.any():
+            rpos = np.flatnonzero(recv)
+            rdevs = [devl[i] for i in kept[rpos].tolist()]
+            did = self._did
+            rdid = np.fromiter((did.get(d, -3) for d in rdevs), np.int64, len(rdevs))
+            # frames: existing ids, or the position of their first event (new ones) shifted past them
+            fk = np.array([-1 if x is None else x for x in (ids_l[j] for j in rpos.tolist())], np.int64)
+            if (rdid == -3).any() or (fk < 0).any():
+                # new receivers or frames first seen here: resolve by key (frames) and intern (devices)
+                for j, d in enumerate(rdevs):
+                    if rdid[j] == -3:
+                        rdid[j] = self._dev_id(d)
+                newmap: dict[tuple[str, int], int] = {}
+                for j in np.flatnonzero(fk < 0).tolist():
+                    key = fkeys[int(rpos[j])]
+                    fk[j] = -2 - newmap.setdefault(key, len(newmap))
+            order = np.lexsort((rdid, fk))
+            fs, ds = fk[order], rdid[order]
+            if ((fs[1:] == fs[:-1]) & (ds[1:] != ds[:-1])).any():
+                return False
+            old = fk >= 0
+            if old.any():
+                have = F.r_dev[fk[old]]
+                if ((have != -1) & (have != rdid[old])).any():
+                    return False
+        else:
+            rpos = rdid = None
+        # -- from here on the batch is taken: state changes --
+        cnt = self._chan_counts
+        for ck, c in Counter(compress(zip(chs, evs, reasonl, strict=True), keep.tolist())).items():
+            cnt[ck] = cnt.get(ck, 0) + c
+        t_all = np.asarray(t9, dtype=np.float64)
+        tmax = float(t_all.max())
+        if tmax > self.t_end:
+            self.t_end = t9[int(t_all.argmax())]
+        dtx.update(learnt)
+        if len(kept) < n:
+            sizes_k = [sizes[i] for i in kept.tolist()]
+            chs_k = [chs[i] for i in kept.tolist()]
+        else:
+            sizes_k, chs_k = list(sizes), list(chs)
+        is_tx = k_ev == 1
+        cb = self._chan_bytes
+        for c, s in compress(zip(chs_k, sizes_k, strict=True), is_tx.tolist()):
+            cb[c] = cb.get(c, 0) + s
+        # new frames, in order of their first event
+        if new_pos:
+            kl = kept.tolist()
+            for j in new_pos:
+                key = fkeys[j]
+                i = index.get(key)
+                if i is None:
+                    row = kl[j]
+                    fl = flowl[row]
+                    td = k_txd[j]
+                    d = dsts[row]
+                    fdst = -1 if d is None else d
+                    i = F.new(key, self._acc_id(fl if fl is not None else td, td, fdst), chs[row], fdst)
+                ids_l[j] = i
+        ids = np.array(ids_l, dtype=np.int64)
+        if rpos is not None:
+            F.r_dev[ids[rpos]] = rdid
+        t = t_all[kept]
+        tl = list(t9) if len(kept) == n else [t9[i] for i in kept.tolist()]   # the times as given (int or float)
+        m_n = len(ids)
+        fl = F.flow[ids]
+        nfl = len(self._flows)
+        # transmissions a frame had at each of its events (the batch's own counted in order)
+        order = np.argsort(ids, kind="stable")
+        s_ids = ids[order]
+        s_tx = is_tx[order].astype(np.int64)
+        cs = np.cumsum(s_tx)
+        start = np.r_[True, s_ids[1:] != s_ids[:-1]]
+        grp_first = np.flatnonzero(start)
+        base = np.repeat(cs[grp_first] - s_tx[grp_first], np.diff(np.r_[grp_first, m_n]))
+        ntx_at = np.empty(m_n, np.int64)
+        ntx_at[order] = F.n_tx[s_ids] + cs - base
+        # per-flow first and last events
+        flows = self._flows
+        uf, ff, lf = _first_last(fl)
+        for f, i0, i1 in zip(uf.tolist(), ff.tolist(), lf.tolist(), strict=True):
+            a = flows[f]
+            m = a.m
+            if a.t_first is None:
+                a.t_first = tl[i0]
+            a.t_last = tl[i1]
+            if m.src is None:
+                m.src = k_txd[i0]
+            if m.dst is None:
+                sel = np.flatnonzero((fl == f) & (F.dst[ids] >= 0))
+                if sel.size:
+                    m.dst = int(F.dst[ids[sel[0]]])
+        header = self._header
+        # enq
+        enq = np.flatnonzero(k_ev == 0)
+        if enq.size:
+            e_ids = ids[enq]
+            np.add.at(F.n_enq, e_ids, 1)
+            ue, fe = np.unique(e_ids, return_index=True)
+            unset = np.isnan(F.t_enq[ue])
+            first_enq = enq[fe[unset]]      # positions of the first enq of frames that had none
+            F.t_enq[ue[unset]] = t[enq[fe[unset]]]
+            e_fl = fl[enq]
+            cnt_e = np.bincount(e_fl, minlength=nfl)
+            uf_e, ff_e = np.unique(e_fl, return_index=True)
+            for f, i0 in zip(uf_e.tolist(), ff_e.tolist(), strict=True):
+                a = flows[f]
+                m = a.m
+                if a.t_first_enq is None:
+                    a.t_first_enq = tl[int(enq[i0])]
+                m.enqueued += int(cnt_e[f])
+                p = m.payload
+                if p is not None:
+                    m.payload_offered += p * int(cnt_e[f])
+                else:
+                    for j in enq[e_fl == f].tolist():
+                        m.payload_offered += max(0, sizes_k[j] - header.get(k_txd[j], 0))
+        else:
+            ue = unset = first_enq = None
+        # tx
+        txp = np.flatnonzero(is_tx)
+        if txp.size:
+            x_ids = ids[txp]
+            first_tx = ntx_at[txp] == 1
+            np.add.at(F.n_tx, x_ids, 1)
+            ux, lx = np.unique(x_ids[::-1], return_index=True)
+            F.t_tx[ux] = t[txp[::-1][lx]]
+            x_fl = fl[txp]
+            sz = np.array(sizes_k, dtype=np.int64)[txp]
+            sent = np.bincount(x_fl, minlength=nfl)
+            nbytes = np.bincount(x_fl, weights=sz, minlength=nfl)
+            uniq = np.bincount(x_fl[first_tx], minlength=nfl)
+            mx = self.max_tx_seq
+            for j in txp[first_tx].tolist():
+                td = k_txd[j]
+                s = k_seq[j]
+                if s > mx.get(td, -1):
+                    mx[td] = s
+            for f in np.flatnonzero(sent).tolist():
+                m = flows[f].m
+                m.sent += int(sent[f])
+                m.unique_sent += int(uniq[f])
+                m.data_bytes_on_air += int(nbytes[f])
+        # rx: deliveries, delays (in order per flow), jitter
+        rxp = np.flatnonzero(k_ev == 2)
+        if rxp.size:
+            r_ids = ids[rxp]
+            np.add.at(F.r_nrx, r_ids, 1)
+            r_fl = fl[rxp]
+            te = F.t_enq[r_ids].copy()
+            if first_enq is not None and first_enq.size:
+                # frames whose first enq is in this batch: its time counts for receptions after it only
+                first_enq_pos = np.full(F.n, -1, np.int64)
+                first_enq_pos[ue[unset]] = first_enq
+                fe_pos = first_enq_pos[r_ids]
+                late = (fe_pos >= 0) & (fe_pos > rxp)
+                te[late] = np.nan
+            got = np.bincount(r_fl, minlength=nfl)
+            d_all = t[rxp] - te
+            o = np.argsort(r_fl, kind="stable")
+            bounds = np.flatnonzero(np.r_[True, r_fl[o][1:] != r_fl[o][:-1], True])
+            for b0, b1 in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
+                grp = o[b0:b1]
+                f = int(r_fl[grp[0]])
+                a = flows[f]
+                m = a.m
+                m.delivered += int(got[f])
+                p = m.payload
+                if p is not None:
+                    m.payload_delivered += p * int(got[f])
+                else:
+                    for j in rxp[grp].tolist():
+                        m.payload_delivered += max(0, sizes_k[j] - header.get(k_txd[j], 0))
+                dg = d_all[grp]
+                dg = dg[~np.isnan(dg)]
+                if dg.size:
+                    a.delays.extend(dg.tolist())
+                    prev = a.prev_delay
+                    seqd = dg.tolist() if prev is None else [prev, *dg.tolist()]
+                    if len(seqd) > 1:
+                        js = a.jit_sum
+                        for x in np.abs(np.diff(np.array(seqd))).tolist():
+                            js += x
+                        a.jit_sum = js
+                        a.jit_n += len(seqd) - 1
+                    a.prev_delay = float(dg[-1])
+        # drops
+        dp = np.flatnonzero(k_ev == 3)
+        if dp.size:
+            kl = kept.tolist()
+            d_fl = fl[dp].tolist()
+            d_reason = [reasonl[kl[j]] for j in dp.tolist()]
+            for (f, r), c in Counter(zip(d_fl, d_reason, strict=True)).items():
+                de = flows[f].drop_events
+                de[r] = de.get(r, 0) + c
+            rid = np.fromiter(map(self._reason_id, d_reason), np.int64, len(d_reason))
+            d_at = at_tx[kept][dp]
+            d_ids = ids[dp]
+            for side in (True, False):
+                sel = np.flatnonzero(d_at == side)
+                if not sel.size:
+                    continue
+                s_ids_ = d_ids[sel]
+                us, ls = np.unique(s_ids_[::-1], return_index=True)
+                last = sel[::-1][ls]
+                if side:
+                    np.add.at(F.n_txdrop, s_ids_, 1)
+                    F.txdrop[us] = rid[last]
+                    F.txdrop_at[us] = ntx_at[dp[last]]
+                else:
+                    np.add.at(F.r_ndrop, s_ids_, 1)
+                    F.r_reason[us] = rid[last]
+                    F.r_at[us] = ntx_at[dp[last]]
+        return True
+
+    # -- the end --
     def _channels(self) -> dict[Any, ChannelMetrics]:
         out: dict[Any, ChannelMetrics] = {}
         for (ch, ev, reason), n in self._chan_counts.items():
@@ -519,11 +955,145 @@ class Accumulator:
             end = max(dur if is_num(dur) else -math.inf, self.t_end)
             if not math.isfinite(end):
                 end = 0.0
-        cons = _settle(self.frames, self.accs, self.devs, self.max_tx_seq, end, horizon, limit)
+        cons = self._settle(end, horizon, limit)
         duration = meta.get("duration") if self.ended is None else self.ended
         flows = {name: _finish(a, self.mflows.get(name), duration if is_num(duration) else None)
                  for name, a in self.accs.items()}
         return Analysis(meta=meta, flows=flows, conservation=cons, channels=self._channels())
+
+    def _settle(self, end: float, horizon: float, limit: int) -> Conservation:
+        """Final outcomes per frame (into the flows' drops) and the conservation check.  The frames with one
+        receiver (or none) that break no rule and have an outcome are counted with numpy; the others
+        (several receivers, a violation, in flight) one by one, in order."""
+        F = self.f
+        n = F.n
+        flows = self._flows
+        reasons = self._reasons
+        devnames = self._devnames
+        violations: list[str] = []
+        total = 0
+        in_flight: list[InFlight] = []
+        if not n:
+            return Conservation(violations, in_flight, frames=0, end=end, total=0)
+        fl = F.flow[:n]
+        dst = F.dst[:n]
+        n_enq = F.n_enq[:n]
+        n_tx = F.n_tx[:n]
+        n_txdrop = F.n_txdrop[:n]
+        txdrop = F.txdrop[:n]
+        txdrop_at = F.txdrop_at[:n]
+        r_dev = F.r_dev[:n]
+        r_nrx = F.r_nrx[:n]
+        r_ndrop = F.r_ndrop[:n]
+        r_reason = F.r_reason[:n]
+        r_at = F.r_at[:n]
+        single = r_dev >= 0
+        odd = (r_dev == -2) | (n_enq != 1) | (n_txdrop > 1) | ((n_txdrop > 0) & (txdrop_at < n_tx))
+        odd |= single & ((r_nrx > 1) | (r_nrx + r_ndrop > n_tx))
+        odd |= (r_dev == -1) & (n_txdrop == 0)            # no outcome: in flight, or a violation
+        uni = np.flatnonzero(single & (dst != BROADCAST) & ~odd)
+        if uni.size:                                      # an outcome at a modem that is not the addressee
+            cache: dict[tuple[Any, int], int] = {}
+            chs = F.ch
+            rx_dev = self.devs.rx_dev
+            for i, d, rd in zip(uni.tolist(), dst[uni].tolist(), r_dev[uni].tolist(), strict=True):
+                key = (chs[i], d)
+                a = cache.get(key)
+                if a is None:
+                    who = rx_dev(*key)
+                    a = cache[key] = -1 if who is None else self._dev_id(who)
+                if a >= 0 and rd != a:
+                    odd[i] = True
+        ok = ~odd
+        tx_final = (n_txdrop > 0) & (txdrop_at == n_tx)
+        rx_any = single & (r_nrx > 0)
+        nfl = len(flows)
+        nr = max(len(reasons), 1)
+        for sel, why in ((ok & single & (r_nrx == 0) & (r_ndrop > 0) & (r_at == n_tx) & ~tx_final, r_reason),
+                         (ok & (n_txdrop > 0) & ~rx_any, txdrop)):
+            code = fl[sel] * nr + why[sel]
+            if code.size:
+                u, c = np.unique(code, return_counts=True)
+                for k, cnt in zip(u.tolist(), c.tolist(), strict=True):
+                    drops = flows[k // nr].m.drops
+                    r = reasons[k % nr]
+                    drops[r] = drops.get(r, 0) + cnt
+        sent = ok & (n_tx > 0)
+        intended = np.bincount(fl[sent], weights=np.where(dst[sent] == BROADCAST, single[sent], 1),
+                               minlength=nfl)
+        for f in np.flatnonzero(intended).tolist():
+            flows[f].intended += int(intended[f])
+
+        max_tx_seq = self.max_tx_seq
+        for i in np.flatnonzero(odd).tolist():
+            tx_dev, seq = F.keys[i]
+            a = flows[int(F.flow[i])]
+            m = a.m
+            label = f"{tx_dev} seq {seq} (flow {m.name}): "
+            msgs: list[str] = []
+            drops = m.drops
+            rcv = F.receivers(i, devnames, reasons)
+            nt = int(n_tx[i])
+            ntd = int(n_txdrop[i])
+            tda = int(txdrop_at[i])
+            fdst = int(dst[i])
+            any_rx = False
+            final = ntd > 0 and tda == nt
+            for rdev, n_rx, n_drop, last_reason, last_at in rcv:
+                if n_rx:
+                    any_rx = True
+                    if n_rx > 1:
+                        msgs.append(f"delivered {n_rx} times at {rdev}")
+                elif n_drop and last_at == nt and not final:
+                    drops[last_reason] = drops.get(last_reason, 0) + 1
+                if n_rx + n_drop > nt:
+                    msgs.append(f"{n_rx + n_drop} outcomes at {rdev} for {nt} transmission(s)")
+            txr = reasons[int(txdrop[i])] if ntd else None
+            if ntd and not any_rx:
+                drops[txr] = drops.get(txr, 0) + 1    # type: ignore[index]
+            if nt:
+                a.intended += len(rcv) if fdst == BROADCAST else 1
+            ne = int(n_enq[i])
+            if ne == 0:
+                msgs.append("no enq record")
+            elif ne > 1:
+                msgs.append(f"enqueued {ne} times")
+            if ntd > 1:
+                msgs.append(f"dropped {ntd} times at the transmitter")
+            if ntd and tda < nt:
+                msgs.append(f"transmitted after its transmitter-side drop ({txr})")
+            if fdst != BROADCAST and rcv:
+                if len(rcv) > 1:
+                    names = ", ".join(sorted(r[0] for r in rcv))
+                    msgs.append(f"outcomes at {len(rcv)} receivers ({names}) of a unicast frame")
+                else:
+                    addressee = self.devs.rx_dev(F.ch[i], fdst)
+                    rdev = rcv[0][0]
+                    if addressee is not None and rdev != addressee:
+                        msgs.append(f"outcome at {rdev}, not at its addressee {addressee}")
+            if not rcv and not ntd:
+                te = float(F.t_enq[i])
+                t_enq = None if math.isnan(te) else te
+                if nt == 0:
+                    if max_tx_seq.get(tx_dev, -1) > seq:
+                        msgs.append(f"never transmitted nor dropped, although later frames of {tx_dev} were sent")
+                    else:
+                        in_flight.append(InFlight(tx_dev, seq, m.name, "queued", t_enq, None))
+                        m.in_flight += 1
+                else:
+                    t_tx = float(F.t_tx[i])
+                    if t_tx >= end - horizon:
+                        in_flight.append(InFlight(tx_dev, seq, m.name, "on air", t_enq, t_tx))
+                        m.in_flight += 1
+                    else:
+                        msgs.append(f"transmitted at {t_tx:g} s, no outcome by the end ({end:g} s)")
+            for msg in msgs:
+                total += 1
+                if len(violations) < limit:
+                    violations.append(label + msg)
+        if total > len(violations):
+            violations.append(f"... {total - len(violations)} more violations")
+        return Conservation(violations, in_flight, frames=n, end=end, total=total)
 
 
 def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float = DEFAULT_HORIZON,
@@ -542,7 +1112,9 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
         rows = [r for r in zip(*(cols[k] for k in ("t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind",
                                                      "reason", "fifo", "dist", "implicit")), strict=True)
                 if r[1] in EVENTS]
-        acc.rows(rows, [r[0] for r in rows])
+        for k in range(0, len(rows), _PENDING):
+            part = rows[k:k + _PENDING]
+            acc.rows(part, [r[0] for r in part])
         return acc.result(horizon=horizon, end=end, limit=limit)
     meta, events = open_source(src, meta)
     acc = Accumulator(meta)
@@ -550,93 +1122,6 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
     for rec in events:
         add(rec)
     return acc.result(horizon=horizon, end=end, limit=limit)
-
-
-def _ctrl_flow(flow: str | None, seq: int, src: int, dst: int | None, ch: Any, tx_dev: str, devs: DeviceMap,
-               frames: Mapping[tuple[str, int], _Frame]) -> str:
-    """The flow a control frame serves: its `flow`, else the data frame it is about (an RTS names the
-    data frame's (src, seq, dst); a CTS/ACK answers with src and dst swapped), else its transmitter."""
-    if flow is not None:
-        return flow
-    fr = frames.get((tx_dev, seq))
-    if fr is not None and (fr.dst == dst or fr.dst == BROADCAST):
-        return fr.flow
-    if is_int(dst) and dst != BROADCAST:
-        fr = frames.get((devs.tx_dev(ch, dst), seq))
-        if fr is not None and (fr.dst == src or fr.dst == BROADCAST):
-            return fr.flow
-    return tx_dev
-
-
-def _settle(frames: dict[tuple[str, int], _Frame], accs: dict[str, _Acc], devs: DeviceMap,
-            max_tx_seq: dict[str, int], end: float, horizon: float, limit: int) -> Conservation:
-    """Final outcomes per frame (into the flows' drops) and the conservation check."""
-    violations: list[str] = []
-    total = 0
-    in_flight: list[InFlight] = []
-
-    def bad(fr_label: tuple[str, int, str], msg: str) -> None:
-        nonlocal total
-        total += 1
-        if len(violations) < limit:
-            tx_dev, seq, flow = fr_label
-            violations.append(f"{tx_dev} seq {seq} (flow {flow}): {msg}")
-
-    for (tx_dev, seq), fr in frames.items():
-        a = accs[fr.flow]
-        m = a.m
-        drops = m.drops
-        label = (tx_dev, seq, fr.flow)        # formatted only for a violation
-        rcv = fr.receivers()
-        n_tx = fr.n_tx
-        any_rx = False
-        tx_final = fr.n_txdrop > 0 and fr.txdrop_at == n_tx
-        for rdev, n_rx, n_drop, last_reason, last_at in rcv:
-            if n_rx:
-                any_rx = True
-                if n_rx > 1:
-                    bad(label, f"delivered {n_rx} times at {rdev}")
-            elif n_drop and last_at == n_tx and not tx_final:
-                drops[last_reason] = drops.get(last_reason, 0) + 1
-            if n_rx + n_drop > n_tx:
-                bad(label, f"{n_rx + n_drop} outcomes at {rdev} for {n_tx} transmission(s)")
-        if fr.n_txdrop and not any_rx:
-            drops[fr.txdrop] = drops.get(fr.txdrop, 0) + 1
-        if n_tx:
-            a.intended += len(rcv) if fr.dst == BROADCAST else 1
-
-        if fr.n_enq == 0:
-            bad(label, "no enq record")
-        elif fr.n_enq > 1:
-            bad(label, f"enqueued {fr.n_enq} times")
-        if fr.n_txdrop > 1:
-            bad(label, f"dropped {fr.n_txdrop} times at the transmitter")
-        if fr.n_txdrop and fr.txdrop_at < n_tx:
-            bad(label, f"transmitted after its transmitter-side drop ({fr.txdrop})")
-        if fr.dst != BROADCAST and rcv:
-            if len(rcv) > 1:
-                names = ", ".join(sorted(r[0] for r in rcv))
-                bad(label, f"outcomes at {len(rcv)} receivers ({names}) of a unicast frame")
-            else:
-                addressee = devs.rx_dev(fr.ch, fr.dst)
-                rdev = rcv[0][0]
-                if addressee is not None and rdev != addressee:
-                    bad(label, f"outcome at {rdev}, not at its addressee {addressee}")
-        if not rcv and not fr.n_txdrop:
-            if n_tx == 0:
-                if max_tx_seq.get(tx_dev, -1) > seq:
-                    bad(label, f"never transmitted nor dropped, although later frames of {tx_dev} were sent")
-                else:
-                    in_flight.append(InFlight(tx_dev, seq, fr.flow, "queued", fr.t_enq, None))
-                    m.in_flight += 1
-            elif fr.t_tx is not None and fr.t_tx >= end - horizon:
-                in_flight.append(InFlight(tx_dev, seq, fr.flow, "on air", fr.t_enq, fr.t_tx))
-                m.in_flight += 1
-            else:
-                bad(label, f"transmitted at {fr.t_tx:g} s, no outcome by the end ({end:g} s)")
-    if total > len(violations):
-        violations.append(f"... {total - len(violations)} more violations")
-    return Conservation(violations, in_flight, frames=len(frames), end=end, total=total)
 
 
 def _finish(a: _Acc, mf: Mapping[str, Any] | None, duration: float | None) -> FlowMetrics:
