@@ -188,21 +188,18 @@ def _records(sc, seed=None, duration=None) -> tuple[dict, list[dict]]:
 
 
 def _agree(meta: dict, recs: list[dict], **kw) -> tuple:
-    """The reference, the batched Accumulator and its event-by-event path on the same records: all equal."""
+    """The reference, the Accumulator on batches of records (analyse) and on one event at a time: all equal."""
     import metrics_reference as ref
 
     from uwsimnet_zenoh.analysis import Accumulator
 
     want = _as_ref(ref.analyse([meta, *recs], **kw))
-    batched = Accumulator(meta)
+    assert _as_ref(analyse([meta, *recs], **kw)) == want
+    one = Accumulator(meta)
     for r in recs:
-        batched.add(r)
-    assert _as_ref(batched.result(**kw)) == want
-    serial = Accumulator(meta)
-    serial.vectorised = False
-    for r in recs:
-        serial.add(r)
-    assert _as_ref(serial.result(**kw)) == want
+        one.event(r["t"], r["ev"], r["ch"], r["dev"], r["src"], r.get("dst"), r["seq"], r["size"], r.get("flow"),
+                  r.get("kind", "data"), r.get("reason"), "dist" in r, bool(r.get("implicit")))
+    assert _as_ref(one.result(**kw)) == want
     return want
 
 
@@ -229,7 +226,6 @@ def test_batched_metrics_equal_the_event_by_event_definition_on_busy_channels(ma
 def test_online_batches_equal_the_event_by_event_definition():
     """The run's own batches (Tracer.consume, times rounded per batch) against the reference on its records."""
     import metrics_reference as ref
-
     from test_aloha_theory import sensors_scene
 
     from uwsimnet_zenoh.analysis import Accumulator
@@ -243,7 +239,7 @@ def test_online_batches_equal_the_event_by_event_definition():
     net.run()
     net.tracer.flush()
     assert _as_ref(acc.result()) == _as_ref(ref.analyse([net.meta(), *recs]))
-    assert acc.batches["vector"] >= 3
+    assert len(recs) > 3 * 4096            # several batches
     assert net.tracer.count("tx") == sum(r["ev"] == "tx" for r in recs)
 
 
@@ -262,7 +258,6 @@ def test_batched_metrics_report_the_same_violations():
 def test_batched_metrics_equal_the_event_by_event_definition_hypothesis():
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
-
     from test_aloha_theory import sensors_scene
 
     @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck))

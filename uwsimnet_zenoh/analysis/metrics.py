@@ -16,7 +16,6 @@ from array import array
 from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field
-from itertools import compress
 from typing import Any
 
 import numpy as np
@@ -232,96 +231,80 @@ _PENDING = 4096
 
 
 class _Frames:
-    """The state of every data frame seen, one column per field, indexed by frame id (ids in the order of
-    the frames' first events): what the conservation check and the delays need.  `r_*` is its receiver
-    (unicast: at most one); `r_dev` is -2 once several receivers have had an outcome, and then `multi[id]`
-    holds them all in order, each [dccommsId, rx events, drop events, last drop reason, n_tx at it]."""
+    """The state of every data frame seen, one list per field, indexed by frame id (ids in the order of the
+    frames' first events): what the conservation check and the delays need.  Lists, not arrays, while the
+    events come (an element of a list costs a tenth of a numpy scalar); the check at the end takes them as
+    arrays.  `r_*` is its receiver (unicast: at most one); `r_dev` is -2 once several receivers have had
+    an outcome, and then `multi[id]` holds them all in order, each [dccommsId, rx events, drop events,
+    last drop reason, n_tx at it]."""
 
-    INT = ("flow", "dst", "n_enq", "n_tx", "n_txdrop", "txdrop", "txdrop_at", "r_dev", "r_nrx", "r_ndrop",
-           "r_reason", "r_at")
-    FLOAT = ("t_enq", "t_tx")
-    INIT = {"txdrop": -1, "r_dev": -1, "r_reason": -1}
-
-    flow: np.ndarray
-    dst: np.ndarray
-    n_enq: np.ndarray
-    n_tx: np.ndarray
-    n_txdrop: np.ndarray
-    txdrop: np.ndarray
-    txdrop_at: np.ndarray
-    r_dev: np.ndarray
-    r_nrx: np.ndarray
-    r_ndrop: np.ndarray
-    r_reason: np.ndarray
-    r_at: np.ndarray
-    t_enq: np.ndarray           # NaN: no enq yet
-    t_tx: np.ndarray            # NaN: never transmitted
+    COLUMNS = ("flow", "dst", "n_enq", "n_tx", "n_txdrop", "txdrop", "txdrop_at", "r_dev", "r_nrx", "r_ndrop",
+               "r_reason", "r_at", "t_enq", "t_tx")
+    __slots__ = ("index", "keys", "ch", "multi", *COLUMNS)
 
     def __init__(self) -> None:
         self.index: dict[tuple[str, int], int] = {}
         self.keys: list[tuple[str, int]] = []
         self.ch: list[Any] = []
         self.multi: dict[int, dict[str, list[Any]]] = {}
-        self.n = 0
-        self.cap = 0
-        self._grow(1024)
+        self.flow: list[int] = []
+        self.dst: list[int] = []            # -1: the record had none
+        self.n_enq: list[int] = []
+        self.n_tx: list[int] = []
+        self.n_txdrop: list[int] = []
+        self.txdrop: list[str | None] = []  # reason of the last transmitter-side drop
+        self.txdrop_at: list[int] = []
+        self.r_dev: list[Any] = []          # None: no receiver yet; -2: several (multi)
+        self.r_nrx: list[int] = []
+        self.r_ndrop: list[int] = []
+        self.r_reason: list[str | None] = []
+        self.r_at: list[int] = []
+        self.t_enq: list[float | None] = []
+        self.t_tx: list[float | None] = []
 
-    def _grow(self, need: int) -> None:
-        cap = max(need, 2 * self.cap)
-        n = self.n
-        for name in self.INT + self.FLOAT:
-            a = np.full(cap, np.nan if name in self.FLOAT else self.INIT.get(name, 0),
-                        np.float64 if name in self.FLOAT else np.int64)
-            if n:
-                a[:n] = getattr(self, name)[:n]
-            setattr(self, name, a)
-        self.cap = cap
+    @property
+    def n(self) -> int:
+        return len(self.keys)
 
     def new(self, key: tuple[str, int], flow: int, ch: Any, dst: int) -> int:
-        i = self.n
-        if i >= self.cap:
-            self._grow(i + 1)
+        i = len(self.keys)
         self.index[key] = i
         self.keys.append(key)
         self.ch.append(ch)
-        self.flow[i] = flow
-        self.dst[i] = dst
-        self.n = i + 1
+        self.flow.append(flow)
+        self.dst.append(dst)
+        for col in (self.n_enq, self.n_tx, self.n_txdrop, self.txdrop_at, self.r_nrx, self.r_ndrop, self.r_at):
+            col.append(0)
+        for col in (self.txdrop, self.r_dev, self.r_reason, self.t_enq, self.t_tx):
+            col.append(None)
         return i
 
-    def receivers(self, i: int, dev_names: list[str], reason_names: list[str]) -> list[list[Any]]:
+    def receivers(self, i: int) -> list[list[Any]]:
         """[[dccommsId, rx events, drop events, last drop reason, n_tx at it], ...] of frame `i`."""
-        rd = int(self.r_dev[i])
-        if rd == -1:
+        rd = self.r_dev[i]
+        if rd is None:
             return []
         if rd == -2:
             return list(self.multi[i].values())
-        rr = int(self.r_reason[i])
-        return [[dev_names[rd], int(self.r_nrx[i]), int(self.r_ndrop[i]), reason_names[rr] if rr >= 0 else None,
-                 int(self.r_at[i])]]
+        return [[rd, self.r_nrx[i], self.r_ndrop[i], self.r_reason[i], self.r_at[i]]]
 
-    def receiver(self, i: int, dev: str, did: int, reason_names: list[str]) -> list[Any] | None:
-        """The receiver record of `dev` on frame `i` when it has several (else None: use the r_* columns,
-        `r_dev` set to `did` if it had none)."""
-        rd = int(self.r_dev[i])
-        if rd == -1:
-            self.r_dev[i] = did
+    def receiver(self, i: int, dev: str) -> list[Any] | None:
+        """The record of receiver `dev` of frame `i` if the frame has several, else None: the r_* columns
+        are its receiver's (set to `dev` if it had none)."""
+        rd = self.r_dev[i]
+        if rd is None:
+            self.r_dev[i] = dev
             return None
-        if rd == did:
+        if rd == dev:
             return None
         if rd != -2:        # a second receiver: all of them as records from now on
-            m = self.multi[i] = {}
-            rr = int(self.r_reason[i])
-            m[self._dev_name(rd)] = [self._dev_name(rd), int(self.r_nrx[i]), int(self.r_ndrop[i]),
-                                     reason_names[rr] if rr >= 0 else None, int(self.r_at[i])]
+            self.multi[i] = {rd: [rd, self.r_nrx[i], self.r_ndrop[i], self.r_reason[i], self.r_at[i]]}
             self.r_dev[i] = -2
         m = self.multi[i]
         r = m.get(dev)
         if r is None:
             r = m[dev] = [dev, 0, 0, None, 0]
         return r
-
-    _dev_name: Any = None       # set by the Accumulator: dev id -> dccommsId
 
 
 class _Acc:
@@ -354,23 +337,18 @@ def _first_last(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 class Accumulator:
-    """The metrics of a run, accumulated as the events come (`rows()`): the one definition behind `analyse()`
-    on a trace and the online summary of `uwsimnet run` (a batch consumer of the tracer, `on_batch`), so the
-    two give the same numbers for the same run.
+    """The metrics of a run, accumulated as the events come (`rows()`, O(1) per event): the one definition
+    behind `analyse()` on a trace and the online summary of `uwsimnet run` (a batch consumer of the tracer,
+    `on_batch`), so the two give the same numbers for the same run.
 
         acc = Accumulator(net.meta()); net.tracer.consume(acc.on_batch); net.run(); net.tracer.flush()
         a = acc.result()
 
-    A batch of events is taken at once with numpy (`_vector`: per-frame state in columns, counts by
-    bincount, the order-dependent parts, such as the transmissions a frame had when a drop happened and the
-    delays of a flow in order, from stable sorts) when it is made of data frames with at most one receiver
-    each; a batch with control frames or broadcast receptions at several receivers is taken event by event
-    (`_serial`).  Both give the same state (tests/test_online_metrics.py holds them to the event-by-event
-    definition of before, on every scene).
+    Events come in batches (the tracer's, or `add()`'s of trace records) and are taken in one flat loop,
+    its state in locals and lists; the conservation check at the end is done with numpy for the frames with
+    one outcome and no violation, one by one for the others.  tests/test_online_metrics.py holds it to
+    the event-by-event definition it replaced (tests/metrics_reference.py) on every scene.
     """
-
-    vectorised = True
-    """False: every batch event by event (the reference path)."""
 
     def __init__(self, meta: Mapping[str, Any] | None = None) -> None:
         meta = dict(meta or {})
@@ -387,22 +365,15 @@ class Accumulator:
                              payload=size if is_int(size) else None)
             self._new_acc(name, _Acc(fm))
         self.f = _Frames()
-        self.f._dev_name = self._dev_names_get
         self.max_tx_seq: dict[str, int] = {}
         self._chan_counts: dict[tuple[Any, str, str | None], int] = {}
         self._chan_bytes: dict[Any, int] = {}
         self._chan_ctrl: dict[Any, int] = {}
-        self._rid: dict[str, int] = {}
-        self._reasons: list[str] = []
-        self._did: dict[str, int] = {}
-        self._devnames: list[str] = []
         self.t_end = -math.inf
         self.ended: float | None = None     # an `end` record: the run's actual end (stopped early, realtime)
         self._header = devs.header
         self._pending: list[tuple[Any, ...]] = []     # records of `add()` not yet taken
-        self.batches = {"vector": 0, "serial": 0}      # how the batches were taken
 
-    # -- ids --
     def _new_acc(self, name: str, a: _Acc) -> int:
         i = len(self._flows)
         self._flows.append(a)
@@ -415,23 +386,6 @@ class Accumulator:
         if i is None:
             i = self._new_acc(name, _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if is_int(dst) else None)))
         return i
-
-    def _reason_id(self, reason: str) -> int:
-        i = self._rid.get(reason)
-        if i is None:
-            i = self._rid[reason] = len(self._reasons)
-            self._reasons.append(reason)
-        return i
-
-    def _dev_id(self, dev: str) -> int:
-        i = self._did.get(dev)
-        if i is None:
-            i = self._did[dev] = len(self._devnames)
-            self._devnames.append(dev)
-        return i
-
-    def _dev_names_get(self, i: int) -> str:
-        return self._devnames[i]
 
     # -- input --
     def add(self, rec: Mapping[str, Any]) -> None:
@@ -461,7 +415,7 @@ class Accumulator:
         """A batch consumer (trace.events.Tracer.consume): the events of a `Batch`, their records' times
         shared with the trace writers."""
         self._drain()
-        self.rows(b.rows, b.t9, b.columns())
+        self.rows(b.rows, b.t9)
 
     def on_event(self, t: float, ev: str, ch: int, dev: str, frame: Any, reason: str | None,
                  fifo: int | None, dist: float | None, implicit: bool = False) -> None:
@@ -478,35 +432,23 @@ class Accumulator:
         self.rows([(t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, None, True if has_dist else None,
                     implicit)], [t])
 
-    def rows(self, rows: list[tuple[Any, ...]], t9: list[float], cols: list[tuple[Any, ...]] | None = None) -> None:
-        """Frame events in order, each a row (t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, fifo,
-        dist, implicit) (trace.events.Row; `dist` only tested for None, `fifo` unused) with `t9` its record's
-        time; `cols`: the rows as columns, if at hand.  Both the online summary (`on_batch`) and a trace
-        (`add`, `analyse`) come here."""
-        if not rows:
-            return
-        if self.vectorised and len(rows) >= 64:
-            if cols is None:
-                cols = list(zip(*rows, strict=True))
-            if self._vector(rows, t9, cols):
-                self.batches["vector"] += 1
-                return
-        self.batches["serial"] += 1
-        self._serial(rows, t9)
-
-    # -- event by event --
-    def _serial(self, rows: Iterable[tuple[Any, ...]], t9: Iterable[float]) -> None:
-        """The definition, one event at a time."""
+    def rows(self, rows: Iterable[tuple[Any, ...]], t9: Iterable[float]) -> None:
+        """The definition: frame events in order, each a row (t, ev, ch, dev, src, dst, seq, size, flow, kind,
+        reason, fifo, dist, implicit) (trace.events.Row; `dist` only tested for None, `fifo` unused) with
+        `t9` its record's time.  Both the online summary (`on_batch`) and a trace (`add`, `analyse`) come
+        here.  The hot path of a run's summary: one flat loop, the state in locals and lists."""
         F = self.f
         index = F.index
+        f_flow, f_dst, f_nenq, f_ntx, f_ttx, f_tenq = F.flow, F.dst, F.n_enq, F.n_tx, F.t_tx, F.t_enq
+        f_rdev, f_rnrx = F.r_dev, F.r_nrx
         flows = self._flows
+        fid = self._fid
         devs = self.devs
         dtx = devs.tx
         cnt = self._chan_counts
         cbytes = self._chan_bytes
         header = self._header
         max_tx_seq = self.max_tx_seq
-        reasons = self._reasons
         t_end = self.t_end
         try:
             for (_, ev, ch, dev, src, dst, seq, size, flow, kind, reason, _fifo, dist, implicit), t in zip(
@@ -551,12 +493,14 @@ class Accumulator:
                 fkey = (tx_dev, seq)
                 i = index.get(fkey)
                 if i is None:
-                    name = flow if flow is not None else tx_dev
                     fdst = -1 if dst is None else dst
-                    fl = self._acc_id(name, tx_dev, fdst)
+                    name = flow if flow is not None else tx_dev
+                    fl = fid.get(name)
+                    if fl is None:
+                        fl = self._acc_id(name, tx_dev, fdst)
                     i = F.new(fkey, fl, ch, fdst)
                 else:
-                    fl = int(F.flow[i])
+                    fl = f_flow[i]
                 a = flows[fl]
                 m = a.m
                 if a.t_first is None:
@@ -565,23 +509,22 @@ class Accumulator:
                 if m.src is None:
                     m.src = tx_dev
                 if m.dst is None:
-                    fdst = int(F.dst[i])
-                    if fdst >= 0:
+                    fdst = f_dst[i]
+                    if is_int(fdst) and fdst >= 0:
                         m.dst = fdst
 
                 if ev == "enq":
-                    F.n_enq[i] += 1
-                    if math.isnan(F.t_enq[i]):
-                        F.t_enq[i] = t
+                    f_nenq[i] += 1
+                    if f_tenq[i] is None:
+                        f_tenq[i] = t
                     if a.t_first_enq is None:
                         a.t_first_enq = t
                     m.enqueued += 1
                     p = m.payload
                     m.payload_offered += p if p is not None else max(0, size - header.get(tx_dev, 0))
                 elif ev == "tx":
-                    n_tx = int(F.n_tx[i]) + 1
-                    F.n_tx[i] = n_tx
-                    F.t_tx[i] = t
+                    n_tx = f_ntx[i] = f_ntx[i] + 1
+                    f_ttx[i] = t
                     if n_tx == 1:
                         m.unique_sent += 1
                         if seq > max_tx_seq.get(tx_dev, -1):
@@ -589,16 +532,19 @@ class Accumulator:
                     m.sent += 1
                     m.data_bytes_on_air += size
                 elif ev == "rx":
-                    r = F.receiver(i, dev, self._dev_id(dev), reasons)
-                    if r is None:
-                        F.r_nrx[i] += 1
+                    rd = f_rdev[i]
+                    if rd == dev:
+                        f_rnrx[i] += 1
+                    elif rd is None:
+                        f_rdev[i] = dev
+                        f_rnrx[i] += 1
                     else:
-                        r[1] += 1
+                        F.receiver(i, dev)[1] += 1  # type: ignore[index]
                     m.delivered += 1
                     p = m.payload
                     m.payload_delivered += p if p is not None else max(0, size - header.get(tx_dev, 0))
-                    t_enq = float(F.t_enq[i])
-                    if not math.isnan(t_enq):
+                    t_enq = f_tenq[i]
+                    if t_enq is not None:
                         d = t - t_enq
                         a.delays.append(d)
                         prev = a.prev_delay
@@ -611,18 +557,20 @@ class Accumulator:
                     de[reason] = de.get(reason, 0) + 1
                     if at_tx:
                         F.n_txdrop[i] += 1
-                        F.txdrop[i] = self._reason_id(reason)
-                        F.txdrop_at[i] = F.n_tx[i]
+                        F.txdrop[i] = reason
+                        F.txdrop_at[i] = f_ntx[i]
                     else:
-                        r = F.receiver(i, dev, self._dev_id(dev), reasons)
-                        if r is None:
+                        rd = f_rdev[i]
+                        if rd == dev or rd is None:
+                            f_rdev[i] = dev
                             F.r_ndrop[i] += 1
-                            F.r_reason[i] = self._reason_id(reason)
-                            F.r_at[i] = F.n_tx[i]
+                            F.r_reason[i] = reason
+                            F.r_at[i] = f_ntx[i]
                         else:
-                            r[2] += 1
-                            r[3] = reason
-                            r[4] = int(F.n_tx[i])
+                            r = F.receiver(i, dev)
+                            r[2] += 1           # type: ignore[index]
+                            r[3] = reason       # type: ignore[index]
+                            r[4] = f_ntx[i]     # type: ignore[index]
         finally:
             self.t_end = t_end
 
@@ -633,295 +581,13 @@ class Accumulator:
             return flow
         F = self.f
         i = F.index.get((tx_dev, seq))
-        if i is not None:
-            fdst = int(F.dst[i])
-            if fdst in (dst, BROADCAST):
-                return self._flows[int(F.flow[i])].m.name
+        if i is not None and F.dst[i] in (dst, BROADCAST):
+            return self._flows[F.flow[i]].m.name
         if is_int(dst) and dst != BROADCAST:
             i = F.index.get((self.devs.tx_dev(ch, dst), seq))
-            if i is not None:
-                fdst = int(F.dst[i])
-                if fdst in (src, BROADCAST):
-                    return self._flows[int(F.flow[i])].m.name
+            if i is not None and F.dst[i] in (src, BROADCAST):
+                return self._flows[F.flow[i]].m.name
         return tx_dev
-
-    # -- a batch at once --
-    def _vector(self, rows: list[tuple[Any, ...]], t9: list[float], cols: list[tuple[Any, ...]]) -> bool:
-        """The batch with numpy, if it is made of data frames whose receptions and receiver-side drops are
-        at one receiver per frame (also across batches); else False, nothing changed."""
-        (_, evs, chs, devl, srcs, dsts, seqs, sizes, flowl, kinds, reasonl, _fifo, dists, imps) = cols
-        if not (len(set(kinds)) == 1 and kinds[0] == "data"):
-            return False
-        n = len(rows)
-        F = self.f
-        devs = self.devs
-        dtx = devs.tx
-        evc = np.fromiter(map(_EV.__getitem__, evs), np.int8, n)
-        impl = np.fromiter(map(bool, imps), bool, n)
-        keep = ~(impl & (evc == 2))
-        keys = list(zip(chs, srcs, strict=True))
-        known = list(map(dtx.get, keys))
-        # transmitter and side of every kept event; (ch, src) pairs not known before the batch are learnt
-        # in order, event by event (they change nothing else)
-        dev_a = np.array(devl, dtype=object)
-        known_a = np.array(known, dtype=object)
-        at_tx = (evc <= 1) | ((evc == 3) & (dev_a == known_a))
-        tx_dev = np.where(at_tx, dev_a, known_a)
-        unknown = np.flatnonzero(keep & (known_a == None)).tolist()  # noqa: E711 - elementwise
-        if unknown:
-            dist_none = [dists[i] is None for i in unknown]
-            learnt: dict[tuple[Any, int], str] = {}
-            for i, dn in zip(unknown, dist_none, strict=True):
-                k = keys[i]
-                e = evs[i]
-                kn = learnt.get(k)
-                if kn is None:
-                    kn = dtx.get(k)
-                if e == "rx":
-                    a_tx = False
-                    td = kn or devs.tx_dev(*k)
-                elif e == "drop":
-                    r = reasonl[i]
-                    a_tx = devl[i] == kn if kn is not None else (r in TX_REASONS or (r not in RX_REASONS and dn))
-                    if a_tx:
-                        if kn is None:
-                            learnt[k] = devl[i]
-                        td = devl[i]
-                    else:
-                        td = kn if kn is not None else devs.tx_dev(*k)
-                else:
-                    a_tx = True
-                    td = devl[i]
-                    if kn is None:
-                        learnt[k] = td
-                at_tx[i] = a_tx
-                tx_dev[i] = td
-        else:
-            learnt = {}
-        kept = np.flatnonzero(keep)       # not the implicit receptions: they only count for the time
-        k_ev = evc[kept]
-        k_txd = tx_dev[kept].tolist()
-        k_seq = [seqs[i] for i in kept.tolist()] if len(kept) < n else list(seqs)
-        fkeys = list(zip(k_txd, k_seq, strict=True))
-        index = F.index
-        ids_l = list(map(index.get, fkeys))
-        # receivers: at most one per frame, the one it already has if any
-        recv = (k_ev == 2) | ((k_ev == 3) & ~at_tx[kept])
-        new_pos = [j for j, x in enumerate(ids_l) if x is None]
-        if recv.any():
-            rpos = np.flatnonzero(recv)
-            rdevs = [devl[i] for i in kept[rpos].tolist()]
-            did = self._did
-            rdid = np.fromiter((did.get(d, -3) for d in rdevs), np.int64, len(rdevs))
-            # frames: existing ids, or the position of their first event (new ones) shifted past them
-            fk = np.array([-1 if x is None else x for x in (ids_l[j] for j in rpos.tolist())], np.int64)
-            if (rdid == -3).any() or (fk < 0).any():
-                # new receivers or frames first seen here: resolve by key (frames) and intern (devices)
-                for j, d in enumerate(rdevs):
-                    if rdid[j] == -3:
-                        rdid[j] = self._dev_id(d)
-                newmap: dict[tuple[str, int], int] = {}
-                for j in np.flatnonzero(fk < 0).tolist():
-                    key = fkeys[int(rpos[j])]
-                    fk[j] = -2 - newmap.setdefault(key, len(newmap))
-            order = np.lexsort((rdid, fk))
-            fs, ds = fk[order], rdid[order]
-            if ((fs[1:] == fs[:-1]) & (ds[1:] != ds[:-1])).any():
-                return False
-            old = fk >= 0
-            if old.any():
-                have = F.r_dev[fk[old]]
-                if ((have != -1) & (have != rdid[old])).any():
-                    return False
-        else:
-            rpos = rdid = None
-        # -- from here on the batch is taken: state changes --
-        cnt = self._chan_counts
-        for ck, c in Counter(compress(zip(chs, evs, reasonl, strict=True), keep.tolist())).items():
-            cnt[ck] = cnt.get(ck, 0) + c
-        t_all = np.asarray(t9, dtype=np.float64)
-        tmax = float(t_all.max())
-        if tmax > self.t_end:
-            self.t_end = t9[int(t_all.argmax())]
-        dtx.update(learnt)
-        if len(kept) < n:
-            sizes_k = [sizes[i] for i in kept.tolist()]
-            chs_k = [chs[i] for i in kept.tolist()]
-        else:
-            sizes_k, chs_k = list(sizes), list(chs)
-        is_tx = k_ev == 1
-        cb = self._chan_bytes
-        for c, s in compress(zip(chs_k, sizes_k, strict=True), is_tx.tolist()):
-            cb[c] = cb.get(c, 0) + s
-        # new frames, in order of their first event
-        if new_pos:
-            kl = kept.tolist()
-            for j in new_pos:
-                key = fkeys[j]
-                i = index.get(key)
-                if i is None:
-                    row = kl[j]
-                    fl = flowl[row]
-                    td = k_txd[j]
-                    d = dsts[row]
-                    fdst = -1 if d is None else d
-                    i = F.new(key, self._acc_id(fl if fl is not None else td, td, fdst), chs[row], fdst)
-                ids_l[j] = i
-        ids = np.array(ids_l, dtype=np.int64)
-        if rpos is not None:
-            F.r_dev[ids[rpos]] = rdid
-        t = t_all[kept]
-        tl = list(t9) if len(kept) == n else [t9[i] for i in kept.tolist()]   # the times as given (int or float)
-        m_n = len(ids)
-        fl = F.flow[ids]
-        nfl = len(self._flows)
-        # transmissions a frame had at each of its events (the batch's own counted in order)
-        order = np.argsort(ids, kind="stable")
-        s_ids = ids[order]
-        s_tx = is_tx[order].astype(np.int64)
-        cs = np.cumsum(s_tx)
-        start = np.r_[True, s_ids[1:] != s_ids[:-1]]
-        grp_first = np.flatnonzero(start)
-        base = np.repeat(cs[grp_first] - s_tx[grp_first], np.diff(np.r_[grp_first, m_n]))
-        ntx_at = np.empty(m_n, np.int64)
-        ntx_at[order] = F.n_tx[s_ids] + cs - base
-        # per-flow first and last events
-        flows = self._flows
-        uf, ff, lf = _first_last(fl)
-        for f, i0, i1 in zip(uf.tolist(), ff.tolist(), lf.tolist(), strict=True):
-            a = flows[f]
-            m = a.m
-            if a.t_first is None:
-                a.t_first = tl[i0]
-            a.t_last = tl[i1]
-            if m.src is None:
-                m.src = k_txd[i0]
-            if m.dst is None:
-                sel = np.flatnonzero((fl == f) & (F.dst[ids] >= 0))
-                if sel.size:
-                    m.dst = int(F.dst[ids[sel[0]]])
-        header = self._header
-        # enq
-        enq = np.flatnonzero(k_ev == 0)
-        if enq.size:
-            e_ids = ids[enq]
-            np.add.at(F.n_enq, e_ids, 1)
-            ue, fe = np.unique(e_ids, return_index=True)
-            unset = np.isnan(F.t_enq[ue])
-            first_enq = enq[fe[unset]]      # positions of the first enq of frames that had none
-            F.t_enq[ue[unset]] = t[enq[fe[unset]]]
-            e_fl = fl[enq]
-            cnt_e = np.bincount(e_fl, minlength=nfl)
-            uf_e, ff_e = np.unique(e_fl, return_index=True)
-            for f, i0 in zip(uf_e.tolist(), ff_e.tolist(), strict=True):
-                a = flows[f]
-                m = a.m
-                if a.t_first_enq is None:
-                    a.t_first_enq = tl[int(enq[i0])]
-                m.enqueued += int(cnt_e[f])
-                p = m.payload
-                if p is not None:
-                    m.payload_offered += p * int(cnt_e[f])
-                else:
-                    for j in enq[e_fl == f].tolist():
-                        m.payload_offered += max(0, sizes_k[j] - header.get(k_txd[j], 0))
-        else:
-            ue = unset = first_enq = None
-        # tx
-        txp = np.flatnonzero(is_tx)
-        if txp.size:
-            x_ids = ids[txp]
-            first_tx = ntx_at[txp] == 1
-            np.add.at(F.n_tx, x_ids, 1)
-            ux, lx = np.unique(x_ids[::-1], return_index=True)
-            F.t_tx[ux] = t[txp[::-1][lx]]
-            x_fl = fl[txp]
-            sz = np.array(sizes_k, dtype=np.int64)[txp]
-            sent = np.bincount(x_fl, minlength=nfl)
-            nbytes = np.bincount(x_fl, weights=sz, minlength=nfl)
-            uniq = np.bincount(x_fl[first_tx], minlength=nfl)
-            mx = self.max_tx_seq
-            for j in txp[first_tx].tolist():
-                td = k_txd[j]
-                s = k_seq[j]
-                if s > mx.get(td, -1):
-                    mx[td] = s
-            for f in np.flatnonzero(sent).tolist():
-                m = flows[f].m
-                m.sent += int(sent[f])
-                m.unique_sent += int(uniq[f])
-                m.data_bytes_on_air += int(nbytes[f])
-        # rx: deliveries, delays (in order per flow), jitter
-        rxp = np.flatnonzero(k_ev == 2)
-        if rxp.size:
-            r_ids = ids[rxp]
-            np.add.at(F.r_nrx, r_ids, 1)
-            r_fl = fl[rxp]
-            te = F.t_enq[r_ids].copy()
-            if first_enq is not None and first_enq.size:
-                # frames whose first enq is in this batch: its time counts for receptions after it only
-                first_enq_pos = np.full(F.n, -1, np.int64)
-                first_enq_pos[ue[unset]] = first_enq
-                fe_pos = first_enq_pos[r_ids]
-                late = (fe_pos >= 0) & (fe_pos > rxp)
-                te[late] = np.nan
-            got = np.bincount(r_fl, minlength=nfl)
-            d_all = t[rxp] - te
-            o = np.argsort(r_fl, kind="stable")
-            bounds = np.flatnonzero(np.r_[True, r_fl[o][1:] != r_fl[o][:-1], True])
-            for b0, b1 in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
-                grp = o[b0:b1]
-                f = int(r_fl[grp[0]])
-                a = flows[f]
-                m = a.m
-                m.delivered += int(got[f])
-                p = m.payload
-                if p is not None:
-                    m.payload_delivered += p * int(got[f])
-                else:
-                    for j in rxp[grp].tolist():
-                        m.payload_delivered += max(0, sizes_k[j] - header.get(k_txd[j], 0))
-                dg = d_all[grp]
-                dg = dg[~np.isnan(dg)]
-                if dg.size:
-                    a.delays.extend(dg.tolist())
-                    prev = a.prev_delay
-                    seqd = dg.tolist() if prev is None else [prev, *dg.tolist()]
-                    if len(seqd) > 1:
-                        js = a.jit_sum
-                        for x in np.abs(np.diff(np.array(seqd))).tolist():
-                            js += x
-                        a.jit_sum = js
-                        a.jit_n += len(seqd) - 1
-                    a.prev_delay = float(dg[-1])
-        # drops
-        dp = np.flatnonzero(k_ev == 3)
-        if dp.size:
-            kl = kept.tolist()
-            d_fl = fl[dp].tolist()
-            d_reason = [reasonl[kl[j]] for j in dp.tolist()]
-            for (f, r), c in Counter(zip(d_fl, d_reason, strict=True)).items():
-                de = flows[f].drop_events
-                de[r] = de.get(r, 0) + c
-            rid = np.fromiter(map(self._reason_id, d_reason), np.int64, len(d_reason))
-            d_at = at_tx[kept][dp]
-            d_ids = ids[dp]
-            for side in (True, False):
-                sel = np.flatnonzero(d_at == side)
-                if not sel.size:
-                    continue
-                s_ids_ = d_ids[sel]
-                us, ls = np.unique(s_ids_[::-1], return_index=True)
-                last = sel[::-1][ls]
-                if side:
-                    np.add.at(F.n_txdrop, s_ids_, 1)
-                    F.txdrop[us] = rid[last]
-                    F.txdrop_at[us] = ntx_at[dp[last]]
-                else:
-                    np.add.at(F.r_ndrop, s_ids_, 1)
-                    F.r_reason[us] = rid[last]
-                    F.r_at[us] = ntx_at[dp[last]]
-        return True
 
     # -- the end --
     def _channels(self) -> dict[Any, ChannelMetrics]:
@@ -968,75 +634,70 @@ class Accumulator:
         F = self.f
         n = F.n
         flows = self._flows
-        reasons = self._reasons
-        devnames = self._devnames
         violations: list[str] = []
         total = 0
         in_flight: list[InFlight] = []
         if not n:
             return Conservation(violations, in_flight, frames=0, end=end, total=0)
-        fl = F.flow[:n]
-        dst = F.dst[:n]
-        n_enq = F.n_enq[:n]
-        n_tx = F.n_tx[:n]
-        n_txdrop = F.n_txdrop[:n]
-        txdrop = F.txdrop[:n]
-        txdrop_at = F.txdrop_at[:n]
-        r_dev = F.r_dev[:n]
-        r_nrx = F.r_nrx[:n]
-        r_ndrop = F.r_ndrop[:n]
-        r_reason = F.r_reason[:n]
-        r_at = F.r_at[:n]
-        single = r_dev >= 0
-        odd = (r_dev == -2) | (n_enq != 1) | (n_txdrop > 1) | ((n_txdrop > 0) & (txdrop_at < n_tx))
+        i64 = np.int64
+        dst_l = F.dst
+        dst = np.fromiter((d if -2**62 < d < 2**62 else -1 for d in dst_l), i64, n)   # (only compared to 255)
+        n_enq = np.array(F.n_enq, i64)
+        n_tx = np.array(F.n_tx, i64)
+        n_txdrop = np.array(F.n_txdrop, i64)
+        txdrop_at = np.array(F.txdrop_at, i64)
+        r_nrx = np.array(F.r_nrx, i64)
+        r_ndrop = np.array(F.r_ndrop, i64)
+        r_at = np.array(F.r_at, i64)
+        r_dev = F.r_dev
+        several = np.fromiter((x is not None and not isinstance(x, str) for x in r_dev), bool, n)
+        none = np.fromiter((x is None for x in r_dev), bool, n)
+        single = ~several & ~none
+        odd = several | (n_enq != 1) | (n_txdrop > 1) | ((n_txdrop > 0) & (txdrop_at < n_tx))
         odd |= single & ((r_nrx > 1) | (r_nrx + r_ndrop > n_tx))
-        odd |= (r_dev == -1) & (n_txdrop == 0)            # no outcome: in flight, or a violation
+        odd |= none & (n_txdrop == 0)            # no outcome: in flight, or a violation
         uni = np.flatnonzero(single & (dst != BROADCAST) & ~odd)
-        if uni.size:                                      # an outcome at a modem that is not the addressee
-            cache: dict[tuple[Any, int], int] = {}
+        if uni.size:                             # an outcome at a modem that is not the addressee
+            cache: dict[tuple[Any, Any], str | None] = {}
             chs = F.ch
             rx_dev = self.devs.rx_dev
-            for i, d, rd in zip(uni.tolist(), dst[uni].tolist(), r_dev[uni].tolist(), strict=True):
-                key = (chs[i], d)
-                a = cache.get(key)
-                if a is None:
-                    who = rx_dev(*key)
-                    a = cache[key] = -1 if who is None else self._dev_id(who)
-                if a >= 0 and rd != a:
+            for i in uni.tolist():
+                key = (chs[i], dst_l[i])
+                if key in cache:
+                    who = cache[key]
+                else:
+                    who = cache[key] = rx_dev(*key)
+                if who is not None and r_dev[i] != who:
                     odd[i] = True
         ok = ~odd
         tx_final = (n_txdrop > 0) & (txdrop_at == n_tx)
         rx_any = single & (r_nrx > 0)
-        nfl = len(flows)
-        nr = max(len(reasons), 1)
-        for sel, why in ((ok & single & (r_nrx == 0) & (r_ndrop > 0) & (r_at == n_tx) & ~tx_final, r_reason),
-                         (ok & (n_txdrop > 0) & ~rx_any, txdrop)):
-            code = fl[sel] * nr + why[sel]
-            if code.size:
-                u, c = np.unique(code, return_counts=True)
-                for k, cnt in zip(u.tolist(), c.tolist(), strict=True):
-                    drops = flows[k // nr].m.drops
-                    r = reasons[k % nr]
-                    drops[r] = drops.get(r, 0) + cnt
+        f_flow = F.flow
+        for sel, why in ((ok & single & (r_nrx == 0) & (r_ndrop > 0) & (r_at == n_tx) & ~tx_final, F.r_reason),
+                         (ok & (n_txdrop > 0) & ~rx_any, F.txdrop)):
+            for (f, r), c in Counter((f_flow[i], why[i]) for i in np.flatnonzero(sel).tolist()).items():
+                drops = flows[f].m.drops
+                drops[r] = drops.get(r, 0) + c
         sent = ok & (n_tx > 0)
+        fl = np.array(f_flow, i64)
         intended = np.bincount(fl[sent], weights=np.where(dst[sent] == BROADCAST, single[sent], 1),
-                               minlength=nfl)
+                               minlength=len(flows))
         for f in np.flatnonzero(intended).tolist():
             flows[f].intended += int(intended[f])
 
         max_tx_seq = self.max_tx_seq
         for i in np.flatnonzero(odd).tolist():
             tx_dev, seq = F.keys[i]
-            a = flows[int(F.flow[i])]
+            a = flows[f_flow[i]]
             m = a.m
             label = f"{tx_dev} seq {seq} (flow {m.name}): "
             msgs: list[str] = []
             drops = m.drops
-            rcv = F.receivers(i, devnames, reasons)
-            nt = int(n_tx[i])
-            ntd = int(n_txdrop[i])
-            tda = int(txdrop_at[i])
-            fdst = int(dst[i])
+            rcv = F.receivers(i)
+            nt = F.n_tx[i]
+            ntd = F.n_txdrop[i]
+            tda = F.txdrop_at[i]
+            fdst = dst_l[i]
             any_rx = False
             final = ntd > 0 and tda == nt
             for rdev, n_rx, n_drop, last_reason, last_at in rcv:
@@ -1048,12 +709,12 @@ class Accumulator:
                     drops[last_reason] = drops.get(last_reason, 0) + 1
                 if n_rx + n_drop > nt:
                     msgs.append(f"{n_rx + n_drop} outcomes at {rdev} for {nt} transmission(s)")
-            txr = reasons[int(txdrop[i])] if ntd else None
+            txr = F.txdrop[i]
             if ntd and not any_rx:
                 drops[txr] = drops.get(txr, 0) + 1    # type: ignore[index]
             if nt:
                 a.intended += len(rcv) if fdst == BROADCAST else 1
-            ne = int(n_enq[i])
+            ne = F.n_enq[i]
             if ne == 0:
                 msgs.append("no enq record")
             elif ne > 1:
@@ -1072,8 +733,7 @@ class Accumulator:
                     if addressee is not None and rdev != addressee:
                         msgs.append(f"outcome at {rdev}, not at its addressee {addressee}")
             if not rcv and not ntd:
-                te = float(F.t_enq[i])
-                t_enq = None if math.isnan(te) else te
+                t_enq = F.t_enq[i]
                 if nt == 0:
                     if max_tx_seq.get(tx_dev, -1) > seq:
                         msgs.append(f"never transmitted nor dropped, although later frames of {tx_dev} were sent")
@@ -1081,8 +741,8 @@ class Accumulator:
                         in_flight.append(InFlight(tx_dev, seq, m.name, "queued", t_enq, None))
                         m.in_flight += 1
                 else:
-                    t_tx = float(F.t_tx[i])
-                    if t_tx >= end - horizon:
+                    t_tx = F.t_tx[i]
+                    if t_tx is not None and t_tx >= end - horizon:
                         in_flight.append(InFlight(tx_dev, seq, m.name, "on air", t_enq, t_tx))
                         m.in_flight += 1
                     else:
