@@ -273,3 +273,69 @@ def test_batched_metrics_equal_the_event_by_event_definition_hypothesis():
         _agree(meta, recs, horizon=5.0)
 
     check()
+
+
+def test_rounded_is_round_exactly():
+    """The batch's rounding (numpy, with Python's round for the values it cannot be sure of) against round()."""
+    import random
+
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from uwsimnet_zenoh.trace.events import rounded
+
+    rng = random.Random(5)
+    xs = [rng.random() * 10 ** rng.randint(-12, 7) for _ in range(20000)]
+    xs += [k / 1024 for k in range(3000)] + [i * 1e-9 + 5e-10 for i in range(3000)] + [i * 1e-3 + 5e-4 for i in range(3000)]
+    xs += [0.0, -0.0, 1e16, 4.6e6, 1e300, math.inf, -math.inf, 2.5e-9, 3, 0, 10**20]
+    for nd in (9, 3):
+        got, want = rounded(xs, nd), [round(x, nd) for x in xs]
+        assert [(type(g), g) for g in got] == [(type(w), w) for w in want]
+        assert [math.copysign(1, g) for g in got] == [math.copysign(1, w) for w in want]
+    assert math.isnan(rounded([math.nan], 9)[0])
+
+    @settings(max_examples=300, deadline=None)
+    @given(st.lists(st.floats(allow_nan=False), max_size=50), st.sampled_from([3, 9]))
+    def check(xs, nd):
+        assert rounded(xs, nd) == [round(x, nd) for x in xs]
+
+    check()
+
+
+def test_batched_lines_are_the_event_lines():
+    """The batch writer (one struct per row, rounding per batch, fallbacks in place) writes the bytes that
+    `event()` writes line by line, on the awkward values and on a run."""
+    values = [(0.0, None), (5e-05, None), (1e-4, 3.0), (12.345678912, 0.0), (3.2e-07, 1e-05), (1e16, 2.5e16),
+              (7.5, math.nan), (7.5, math.inf), (123456.000000001, 499.9995), (1e15, 1e-4), (0.1 + 0.2, 0.001),
+              (3, 2), (2.0000000005, 1.0005)]
+    frame = Frame(3, 255, 17, 40, 37, flow="fl\u00f6w \"q\"\n", dev="d\u00e9v")
+    tr = Tracer(batch=5)
+    batched, one = io.BytesIO(), io.BytesIO()
+    bsink, esink = JsonlSink(batched), JsonlSink(one, batch=7)
+    tr.consume(bsink.write_batch)
+    for k, (t, dist) in enumerate(values * 3):
+        reason, fifo = [(None, None), ("col", None), (None, 80), ("fifo", 0)][k % 4]
+        for implicit in (False, True, 0):
+            tr.emit(t, "rx" if dist is not None else "drop", 2, "d\u00e9v\u2028", frame, reason, fifo, dist, implicit)
+            esink.event(t, "rx" if dist is not None else "drop", 2, "d\u00e9v\u2028", frame, reason, fifo, dist,
+                        implicit)
+    tr.flush()
+    esink.flush()
+    assert batched.getvalue() == one.getvalue()
+    assert sum(tr.counts.values()) == 3 * 3 * len(values)
+
+
+def test_run_trace_is_the_listener_trace(tmp_path):
+    """`uwsimnet run --trace` (batches) writes the same file as the per-event listener of before."""
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(8, 1.5, 300.0, 300.0, mac="sfama", fifo=2000, seed=5)
+    simulate(sc, seed=None, duration=None, trace_path=tmp_path / "b.jsonl", progress=False, metrics=False)
+    net = Network(sc)
+    with open(tmp_path / "e.jsonl", "wb") as fh:
+        sink = JsonlSink(fh)
+        sink.header(net.meta())
+        net.tracer.listen(sink.event)
+        net.run()
+        sink.flush()
+    assert (tmp_path / "b.jsonl").read_bytes() == (tmp_path / "e.jsonl").read_bytes()

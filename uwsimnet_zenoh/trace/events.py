@@ -28,6 +28,7 @@ import logging
 import math
 from collections import Counter
 from collections.abc import Callable, Sequence
+from itertools import starmap
 from operator import itemgetter
 from typing import IO, Any
 
@@ -71,7 +72,14 @@ def rounded(xs: Sequence[float], ndigits: int) -> list[float]:
     out = (k / scale).tolist()
     for i in np.flatnonzero(unsure).tolist():
         out[i] = round(float(xs[i]), ndigits)
+    if set(map(type, xs)) != {float}:      # an int stays an int (round(3, 9) is 3), as round() does
+        for i, x in enumerate(xs):
+            if type(x) is not float:
+                out[i] = round(x, ndigits)
     return out
+
+
+_T = itemgetter(0)
 
 
 class Batch:
@@ -98,12 +106,13 @@ class Batch:
     def t9(self) -> list[float]:
         """`round(t, 9)` of every row: the time of its record."""
         if self._t9 is None:
-            ts = self._cols[0] if self._cols is not None else list(map(itemgetter(0), self.rows))
+            ts = self._cols[0] if self._cols is not None else list(map(_T, self.rows))
             self._t9 = rounded(ts, 9)
         return self._t9
 
 
 BatchConsumer = Callable[[Batch], None]
+_EV_REASON = itemgetter(1, 10)
 
 
 class Tracer:
@@ -115,38 +124,42 @@ class Tracer:
         self.listeners: list[EventListener] = []
         self.consumers: list[BatchConsumer] = []
         self.batch = batch
-        self._rows: list[Row] = []
+        self._rows: list[Row] | None = None     # None: no batch consumer, each event counted at once
+        self._rows_only = True                  # no event listener nor record sink
         self._counts: Counter[tuple[str, str | None]] = Counter()
-        self._immediate = True       # no batch consumer: count each event at once
 
     def add(self, sink: Callable[[Record], None]) -> None:
         """A record sink: called with each event as a dict (docs/trace-format.md), at once."""
         self.sinks.append(sink)
+        self._rows_only = False
 
     def listen(self, fn: EventListener) -> None:
         """An event listener: called at once with (t, ev, ch, dev, frame, reason, fifo, dist, implicit);
         nothing is built."""
         self.listeners.append(fn)
+        self._rows_only = False
 
     def consume(self, fn: BatchConsumer) -> None:
         """A batch consumer: called with each `Batch` of events, in order, when `batch` events are
         pending and at `flush()`."""
         self.consumers.append(fn)
-        self._immediate = False
+        if self._rows is None:
+            self._rows = []
 
     def emit(self, t: float, ev: str, ch: int, dev: str, frame: Frame, reason: str | None = None,
              fifo: int | None = None, dist: float | None = None, implicit: bool = False) -> None:
-        if self._immediate:
+        rows = self._rows
+        if rows is None:
             self._counts[ev, reason] += 1
         else:
-            rows = self._rows
             rows.append((t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
                          reason, fifo, dist, implicit))
             if len(rows) >= self.batch:
                 self.flush()
-        if self.listeners:
-            for fn in self.listeners:
-                fn(t, ev, ch, dev, frame, reason, fifo, dist, implicit)
+            if self._rows_only:
+                return
+        for fn in self.listeners:
+            fn(t, ev, ch, dev, frame, reason, fifo, dist, implicit)
         if not self.sinks:
             return
         rec = record(t, ev, ch, dev, frame, reason, fifo, dist, implicit)
@@ -159,9 +172,8 @@ class Tracer:
         if not rows:
             return
         self._rows = []
+        self._counts.update(map(_EV_REASON, rows))
         b = Batch(rows)
-        cols = b.columns()
-        self._counts.update(zip(cols[1], cols[10], strict=True))
         for fn in self.consumers:
             fn(b)
 
@@ -192,6 +204,10 @@ def record(t: float, ev: str, ch: int, dev: str, frame: Frame, reason: str | Non
     if implicit:
         rec["implicit"] = True      # rx of a frame addressed to another modem (no MAC: implicit broadcast)
     return rec
+
+
+_DIST = itemgetter(12)
+_IMPLICIT = itemgetter(13)
 
 
 def _row_record(t9: float, r: Row) -> Record:
@@ -233,7 +249,7 @@ def _dumps(rec: Any) -> str:
         return _encode(finite(rec))
 
 
-class _Line(msgspec.Struct, omit_defaults=True):
+class _Line(msgspec.Struct, omit_defaults=True, gc=False):
     """One event as msgspec encodes it: the record's keys in the record's order; the optional ones
     (reason, fifo, dist; implicit when False) left out, as `record()` does."""
 
@@ -314,46 +330,45 @@ class JsonlSink:
 
     def write_batch(self, b: Batch) -> None:
         """A batch consumer (`tracer.consume(sink.write_batch)`): the batch's lines, written at once.  The
-        same bytes as `event()` on each of its events: times and distances rounded for the whole batch
-        (`rounded`), one msgspec struct per event built from the columns (C loops), and the few lines
-        msgspec would write otherwise than Python's json (`_plain`) written by the reference encoder in
-        their place."""
+        same bytes as `event()` on each of its events: one msgspec struct per event made from its row (a C
+        loop), times and distances rounded for the whole batch (`rounded`), and the few lines msgspec would
+        write otherwise than Python's json (`_plain`) written by the reference encoder in their place."""
         self.flush()
-        if not b.rows:
+        rows = b.rows
+        if not rows:
             return
-        cols = b.columns()
         t9 = b.t9
-        dists = cols[12]
-        dist = np.array(dists, dtype=object)
-        has = np.flatnonzero(dist != None)  # noqa: E711 - elementwise over an object array
-        odd: list[int] = []
-        if has.size:
-            d = np.array(dist[has], dtype=np.float64)
-            d3 = np.array(rounded(d.tolist(), 3), dtype=np.float64)
-            dist[has] = d3.tolist()
-            odd = has[~(((d3 >= 1e-4) & (d3 < 1e15)) | (d3 == 0.0))].tolist()
-            dists = dist.tolist()
+        lines = list(starmap(_Line, rows))
+        for line, t in zip(lines, t9, strict=True):
+            line.t = t
         ta = np.asarray(t9, dtype=np.float64)
-        bad_t = np.flatnonzero(~(((ta >= 1e-4) & (ta < 1e15)) | (ta == 0.0)))
-        if bad_t.size:
-            odd = sorted(set(odd).union(bad_t.tolist()))
-        lines = list(map(_Line, t9, *cols[1:12], dists, map(bool, cols[13])))
+        odd = np.flatnonzero(~(((ta >= 1e-4) & (ta < 1e15)) | (ta == 0.0))).tolist()
+        has = [i for i, d in enumerate(map(_DIST, rows)) if d is not None]
+        if has:
+            d3 = rounded(list(map(float, [rows[i][12] for i in has])), 3)     # round(float(dist), 3)
+            for i, d in zip(has, d3, strict=True):
+                lines[i].dist = d
+                if not (1e-4 <= d < 1e15 or d == 0.0):
+                    odd.append(i)
+        if set(map(type, map(_IMPLICIT, rows))) != {bool}:
+            for line, r in zip(lines, rows, strict=True):
+                line.implicit = bool(r[13])
+        write = self._fh.write
+        binary = self._binary
         if not odd:
             data = self._encode_lines(lines)
-            self._fh.write(data if self._binary else data.decode("utf-8"))  # type: ignore[arg-type]
+            write(data if binary else data.decode("utf-8"))  # type: ignore[arg-type]
             return
-        rows = b.rows
         start = 0
-        for i in odd:
+        for i in sorted(set(odd)):
             if i > start:
                 data = self._encode_lines(lines[start:i])
-                self._fh.write(data if self._binary else data.decode("utf-8"))  # type: ignore[arg-type]
-            r = rows[i]
-            self._write(_dumps(_row_record(t9[i], r)) + "\n")
+                write(data if binary else data.decode("utf-8"))  # type: ignore[arg-type]
+            self._write(_dumps(_row_record(t9[i], rows[i])) + "\n")
             start = i + 1
         if start < len(lines):
             data = self._encode_lines(lines[start:])
-            self._fh.write(data if self._binary else data.decode("utf-8"))  # type: ignore[arg-type]
+            write(data if binary else data.decode("utf-8"))  # type: ignore[arg-type]
 
 
 class ArrowSink:
