@@ -4,9 +4,9 @@
 
 The scene is loaded and the Network built outside the timing; `time.process_time()` covers the run, the last
 batch and the end-of-run settling of the metrics (`Accumulator.result()`), with the cyclic GC spaced as
-`uwsimnet run` spaces it.  Best of `--repeat` runs per configuration, the configurations interleaved.  Works on any checkout of the project
-(the tracer's batch consumers if it has them, its event listeners otherwise), so one script measures before
-and after:
+`uwsimnet run` spaces it.  Best of `--repeat` runs per configuration, the configurations interleaved.
+Works on any checkout of the project (the tracer's batch consumers if it has them, its event listeners
+otherwise), so one script measures before and after:
 
     .venv/bin/python bench/bench_trace_cost.py --nodes 16,256 --frames 20000
 """
