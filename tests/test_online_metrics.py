@@ -340,3 +340,23 @@ def test_run_trace_is_the_listener_trace(tmp_path):
         net.run()
         sink.flush()
     assert (tmp_path / "b.jsonl").read_bytes() == (tmp_path / "e.jsonl").read_bytes()
+
+
+def test_median_p95_are_numpys():
+    import numpy as np
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from uwsimnet_zenoh.analysis.metrics import median_p95
+
+    @settings(max_examples=400, deadline=None)
+    @given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=400))
+    def check(xs):
+        d = np.array(xs)
+        assert median_p95(d) == (float(np.median(d)), float(np.percentile(d, 95)))
+
+    check()
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 20, 21, 101, 4096, 4097):
+        d = rng.exponential(0.5, n)
+        assert median_p95(d) == (float(np.median(d)), float(np.percentile(d, 95)))

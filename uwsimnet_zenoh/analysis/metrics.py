@@ -816,10 +816,27 @@ def _finish(a: _Acc, mf: Mapping[str, Any] | None, duration: float | None) -> Fl
     if a.delays:
         d = np.frombuffer(a.delays, dtype=np.float64)
         m.delay_mean = float(d.mean())
-        m.delay_median = float(np.median(d))
-        m.delay_p95 = float(np.percentile(d, 95))
+        m.delay_median, m.delay_p95 = median_p95(d)
     m.jitter = a.jit_sum / a.jit_n if a.jit_n else None
     return m
+
+
+def median_p95(d: np.ndarray) -> tuple[float, float]:
+    """(np.median(d), np.percentile(d, 95)) of finite values, the same doubles from one sort (numpy's
+    wrappers cost ~0.1 ms a call, per flow): the median is the mean of the middle one or two values, the
+    95th percentile numpy's linear interpolation (virtual index (n - 1) * 0.95, `_lerp`)."""
+    s = np.sort(d)
+    n = len(s)
+    h = n // 2
+    med = float(s[h]) if n % 2 else (float(s[h - 1]) + float(s[h])) / 2
+    v = (n - 1) * 0.95
+    if v >= n - 1:
+        return med, float(s[-1])
+    lo = math.floor(v)
+    g = v - lo
+    a, b = float(s[lo]), float(s[lo + 1])
+    diff = b - a
+    return med, (b - diff * (1 - g) if g >= 0.5 else a + diff * g)
 
 
 def flow_metrics(path_or_events: Source, meta: dict[str, Any] | None = None) -> dict[str, FlowMetrics]:
