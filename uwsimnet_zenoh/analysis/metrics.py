@@ -357,7 +357,6 @@ class Accumulator:
         self.mflows = mflows = _meta_flows(meta)
         self.accs: dict[str, _Acc] = {}
         self._flows: list[_Acc] = []        # by flow id
-        self._payload: list[int | None] = []    # by flow id: payload bytes per frame, from the meta
         self._fid: dict[str, int] = {}
         for name, f in mflows.items():
             size = f.get("size")
@@ -378,7 +377,6 @@ class Accumulator:
     def _new_acc(self, name: str, a: _Acc) -> int:
         i = len(self._flows)
         self._flows.append(a)
-        self._payload.append(a.m.payload)
         self._fid[name] = i
         self.accs[name] = a
         return i
@@ -438,35 +436,19 @@ class Accumulator:
         """The definition: frame events in order, each a row (t, ev, ch, dev, src, dst, seq, size, flow, kind,
         reason, fifo, dist, implicit) (trace.events.Row; `dist` only tested for None, `fifo` unused) with
         `t9` its record's time.  Both the online summary (`on_batch`) and a trace (`add`, `analyse`) come
-        here.  The hot path of a run's summary: one flat loop over the events for what depends on their
-        order (transmitters, frames, delays), the state in locals and lists; the flows' counters are
-        summed per batch after it (`_flow_counts`)."""
+        here.  The hot path of a run's summary: one flat loop, the state in locals and lists."""
         F = self.f
         index = F.index
-        f_flow, f_nenq, f_ntx, f_ttx, f_tenq = F.flow, F.n_enq, F.n_tx, F.t_tx, F.t_enq
+        f_flow, f_dst, f_nenq, f_ntx, f_ttx, f_tenq = F.flow, F.dst, F.n_enq, F.n_tx, F.t_tx, F.t_enq
         f_rdev, f_rnrx = F.r_dev, F.r_nrx
         flows = self._flows
         fid = self._fid
-        pay = self._payload
         devs = self.devs
         dtx = devs.tx
         cnt = self._chan_counts
         cbytes = self._chan_bytes
         header = self._header
         max_tx_seq = self.max_tx_seq
-        # per data event of the batch, in order: its flow, time, transmitter, frame (`_flow_counts`)
-        b_fl: list[int] = []
-        b_t: list[float] = []
-        b_txd: list[str] = []
-        b_i: list[int] = []
-        enq_at: list[int] = []          # positions (in the lists above) of the enq events
-        tx_fl: list[int] = []
-        tx_size: list[int] = []
-        first_tx: list[int] = []
-        rx_fl: list[int] = []
-        drop_fr: list[tuple[int, str]] = []
-        extra: dict[tuple[str, int], int] = {}      # payload bytes of flows without a payload size
-        fl_app, t_app, txd_app, i_app = b_fl.append, b_t.append, b_txd.append, b_i.append
         t_end = self.t_end
         try:
             for (_, ev, ch, dev, src, dst, seq, size, flow, kind, reason, _fifo, dist, implicit), t in zip(
@@ -519,28 +501,36 @@ class Accumulator:
                     i = F.new(fkey, fl, ch, fdst)
                 else:
                     fl = f_flow[i]
-                fl_app(fl)
-                t_app(t)
-                txd_app(tx_dev)
-                i_app(i)
+                a = flows[fl]
+                m = a.m
+                if a.t_first is None:
+                    a.t_first = t
+                a.t_last = t
+                if m.src is None:
+                    m.src = tx_dev
+                if m.dst is None:
+                    fdst = f_dst[i]
+                    if is_int(fdst) and fdst >= 0:
+                        m.dst = fdst
 
                 if ev == "enq":
                     f_nenq[i] += 1
                     if f_tenq[i] is None:
                         f_tenq[i] = t
-                    enq_at.append(len(b_fl) - 1)
-                    if pay[fl] is None:
-                        k = (fl, 0)
-                        extra[k] = extra.get(k, 0) + max(0, size - header.get(tx_dev, 0))
+                    if a.t_first_enq is None:
+                        a.t_first_enq = t
+                    m.enqueued += 1
+                    p = m.payload
+                    m.payload_offered += p if p is not None else max(0, size - header.get(tx_dev, 0))
                 elif ev == "tx":
                     n_tx = f_ntx[i] = f_ntx[i] + 1
                     f_ttx[i] = t
                     if n_tx == 1:
-                        first_tx.append(fl)
+                        m.unique_sent += 1
                         if seq > max_tx_seq.get(tx_dev, -1):
                             max_tx_seq[tx_dev] = seq
-                    tx_fl.append(fl)
-                    tx_size.append(size)
+                    m.sent += 1
+                    m.data_bytes_on_air += size
                 elif ev == "rx":
                     rd = f_rdev[i]
                     if rd == dev:
@@ -550,13 +540,11 @@ class Accumulator:
                         f_rnrx[i] += 1
                     else:
                         F.receiver(i, dev)[1] += 1  # type: ignore[index]
-                    rx_fl.append(fl)
-                    if pay[fl] is None:
-                        k = (fl, 1)
-                        extra[k] = extra.get(k, 0) + max(0, size - header.get(tx_dev, 0))
+                    m.delivered += 1
+                    p = m.payload
+                    m.payload_delivered += p if p is not None else max(0, size - header.get(tx_dev, 0))
                     t_enq = f_tenq[i]
                     if t_enq is not None:
-                        a = flows[fl]
                         d = t - t_enq
                         a.delays.append(d)
                         prev = a.prev_delay
@@ -565,7 +553,8 @@ class Accumulator:
                             a.jit_n += 1
                         a.prev_delay = d
                 else:   # drop
-                    drop_fr.append((fl, reason))
+                    de = a.drop_events
+                    de[reason] = de.get(reason, 0) + 1
                     if at_tx:
                         F.n_txdrop[i] += 1
                         F.txdrop[i] = reason
@@ -584,66 +573,6 @@ class Accumulator:
                             r[4] = f_ntx[i]     # type: ignore[index]
         finally:
             self.t_end = t_end
-            if b_fl:
-                self._flow_counts(b_fl, b_t, b_txd, b_i, enq_at, tx_fl, tx_size, first_tx, rx_fl, drop_fr, extra)
-
-    def _flow_counts(self, b_fl: list[int], b_t: list[float], b_txd: list[str], b_i: list[int], enq_at: list[int],
-                     tx_fl: list[int], tx_size: list[int], first_tx: list[int], rx_fl: list[int],
-                     drop_fr: list[tuple[int, str]], extra: dict[tuple[int, int], int]) -> None:
-        """The flows' counters of a batch's data events (what the event-by-event definition adds one event
-        at a time, summed): first and last event times, source and addressee when unknown, enq/tx/rx
-        counts and bytes, drop events by reason."""
-        flows = self._flows
-        n = len(b_fl)
-        last = dict(zip(b_fl, range(n), strict=True))                       # flow -> its last event
-        first = dict(zip(reversed(b_fl), range(n - 1, -1, -1), strict=True))  # flow -> its first event
-        f_dst = self.f.dst
-        for fl, j in first.items():
-            a = flows[fl]
-            m = a.m
-            if a.t_first is None:
-                a.t_first = b_t[j]
-            a.t_last = b_t[last[fl]]
-            if m.src is None:
-                m.src = b_txd[j]
-            if m.dst is None:
-                for k in range(j, n):
-                    if b_fl[k] == fl:
-                        d = f_dst[b_i[k]]
-                        if is_int(d) and d >= 0:
-                            m.dst = d
-                            break
-        if enq_at:
-            e_fl = [b_fl[j] for j in enq_at]
-            for fl, j in dict(zip(reversed(e_fl), reversed(enq_at), strict=True)).items():
-                a = flows[fl]
-                if a.t_first_enq is None:
-                    a.t_first_enq = b_t[j]
-            for fl, c in Counter(e_fl).items():
-                m = flows[fl].m
-                m.enqueued += c
-                p = m.payload
-                m.payload_offered += p * c if p is not None else extra.get((fl, 0), 0)
-        if tx_fl:
-            nbytes: dict[int, int] = {}
-            for fl, s in zip(tx_fl, tx_size, strict=True):
-                nbytes[fl] = nbytes.get(fl, 0) + s
-            for fl, c in Counter(tx_fl).items():
-                m = flows[fl].m
-                m.sent += c
-                m.data_bytes_on_air += nbytes[fl]
-            for fl, c in Counter(first_tx).items():
-                flows[fl].m.unique_sent += c
-        if rx_fl:
-            for fl, c in Counter(rx_fl).items():
-                m = flows[fl].m
-                m.delivered += c
-                p = m.payload
-                m.payload_delivered += p * c if p is not None else extra.get((fl, 1), 0)
-        if drop_fr:
-            for (fl, reason), c in Counter(drop_fr).items():
-                de = flows[fl].drop_events
-                de[reason] = de.get(reason, 0) + c
 
     def _ctrl_flow(self, flow: str | None, seq: int, src: int, dst: int | None, ch: Any, tx_dev: str) -> str:
         """The flow a control frame serves: its `flow`, else the data frame it is about (an RTS names the
