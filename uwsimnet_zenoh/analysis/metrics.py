@@ -225,7 +225,6 @@ class Analysis:
 
 
 # -- the pass -----------------------------------------------------------------------------------
-_EV = {"enq": 0, "tx": 1, "rx": 2, "drop": 3}
 _PENDING = 4096
 """Records `Accumulator.add` takes at a time."""
 
@@ -327,13 +326,6 @@ class _Acc:
 def _meta_flows(meta: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
     flows = meta.get("flows") or {}
     return {k: v for k, v in flows.items() if isinstance(v, Mapping)} if isinstance(flows, Mapping) else {}
-
-
-def _first_last(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(distinct keys, index of each one's first row, index of its last row)."""
-    u, first = np.unique(keys, return_index=True)
-    _, rlast = np.unique(keys[::-1], return_index=True)
-    return u, first, len(keys) - 1 - rlast
 
 
 class Accumulator:
