@@ -272,10 +272,18 @@ class _Frames:
         self.ch.append(ch)
         self.flow.append(flow)
         self.dst.append(dst)
-        for col in (self.n_enq, self.n_tx, self.n_txdrop, self.txdrop_at, self.r_nrx, self.r_ndrop, self.r_at):
-            col.append(0)
-        for col in (self.txdrop, self.r_dev, self.r_reason, self.t_enq, self.t_tx):
-            col.append(None)
+        self.n_enq.append(0)            # (written out: a loop over the lists costs 3 % of the metrics)
+        self.n_tx.append(0)
+        self.n_txdrop.append(0)
+        self.txdrop_at.append(0)
+        self.r_nrx.append(0)
+        self.r_ndrop.append(0)
+        self.r_at.append(0)
+        self.txdrop.append(None)
+        self.r_dev.append(None)
+        self.r_reason.append(None)
+        self.t_enq.append(None)
+        self.t_tx.append(None)
         return i
 
     def receivers(self, i: int) -> list[list[Any]]:
