@@ -168,3 +168,195 @@ def test_online_summary_skips_implicit_receptions_as_the_report_does(tmp_path):
     assert '"implicit":true' in (tmp_path / "t.jsonl").read_text()
     same_analysis(run.analysis, analyse(tmp_path / "t.jsonl"))
     assert run.analysis.flows["s0"].delivered <= run.analysis.flows["s0"].sent
+
+
+# -- the batched metrics against the event-by-event definition of before (tests/metrics_reference.py) --------
+def _as_ref(a) -> tuple:
+    """An Analysis (batched or reference) as plain data."""
+    return ({k: f.to_dict() for k, f in a.flows.items()}, list(a.flows),
+            {k: c.to_dict() for k, c in a.channels.items()},
+            list(a.conservation), a.conservation.total, a.conservation.frames, a.conservation.end,
+            [(x.dev, x.seq, x.flow, x.state, x.t_enq, x.t_tx) for x in a.conservation.in_flight])
+
+
+def _records(sc, seed=None, duration=None) -> tuple[dict, list[dict]]:
+    net = Network(sc, seed=seed, duration=duration)
+    recs: list[dict] = []
+    net.tracer.add(recs.append)
+    net.run()
+    return net.meta(), recs
+
+
+def _agree(meta: dict, recs: list[dict], **kw) -> tuple:
+    """The reference, the Accumulator on batches of records (analyse) and on one event at a time: all equal."""
+    import metrics_reference as ref
+
+    from uwsimnet_zenoh.analysis import Accumulator
+
+    want = _as_ref(ref.analyse([meta, *recs], **kw))
+    assert _as_ref(analyse([meta, *recs], **kw)) == want
+    one = Accumulator(meta)
+    for r in recs:
+        one.event(r["t"], r["ev"], r["ch"], r["dev"], r["src"], r.get("dst"), r["seq"], r["size"], r.get("flow"),
+                  r.get("kind", "data"), r.get("reason"), "dist" in r, bool(r.get("implicit")))
+    assert _as_ref(one.result(**kw)) == want
+    return want
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_batched_metrics_equal_the_event_by_event_definition_on_every_scene(scene):
+    sc = load_scene_file(str(ROOT / scene))
+    meta, recs = _records(sc, seed=3, duration=min(sc.simulation.duration or 40.0, 40.0))
+    _agree(meta, recs)
+    for cut in (0.3, 0.7):      # a trace cut short: frames in flight, outcomes missing
+        _agree(meta, recs[:int(len(recs) * cut)], horizon=1.0)
+
+
+@pytest.mark.parametrize("mac, shared, fifo", [("none", True, 0), ("none", False, 0), ("aloha", True, 2000),
+                                                ("sfama", True, 2000), ("none", True, 500)])
+def test_batched_metrics_equal_the_event_by_event_definition_on_busy_channels(mac, shared, fifo):
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(12, 1.5, 1500.0, 300.0, mac=mac, shared=shared, fifo=fifo, seed=7)
+    meta, recs = _records(sc)
+    assert len(recs) > 3 * 4096            # several batches
+    _agree(meta, recs)
+
+
+def test_online_batches_equal_the_event_by_event_definition():
+    """The run's own batches (Tracer.consume, times rounded per batch) against the reference on its records."""
+    import metrics_reference as ref
+    from test_aloha_theory import sensors_scene
+
+    from uwsimnet_zenoh.analysis import Accumulator
+
+    sc = sensors_scene(16, 1.0, 1000.0, 500.0, mac="none", fifo=0, seed=2)
+    net = Network(sc)
+    recs: list[dict] = []
+    net.tracer.add(recs.append)
+    acc = Accumulator(net.meta())
+    net.tracer.consume(acc.on_batch)
+    net.run()
+    net.tracer.flush()
+    assert _as_ref(acc.result()) == _as_ref(ref.analyse([net.meta(), *recs]))
+    assert len(recs) > 3 * 4096            # several batches
+    assert net.tracer.count("tx") == sum(r["ev"] == "tx" for r in recs)
+
+
+def test_batched_metrics_report_the_same_violations():
+    """Records lost, repeated or delivered twice: the same conservation messages, in the same order."""
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(6, 1.2, 300.0, 300.0, mac="aloha", fifo=2000, seed=3)
+    meta, recs = _records(sc)
+    bad = [r for i, r in enumerate(recs) if i % 97 != 5]                  # some records lost
+    bad += [dict(r) for r in recs[::211]]                                 # some repeated at the end
+    want = _agree(meta, bad, limit=10)
+    assert want[3] and want[4] > 10                                      # violations, truncated
+
+
+def test_batched_metrics_equal_the_event_by_event_definition_hypothesis():
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+    from test_aloha_theory import sensors_scene
+
+    @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(n=st.integers(1, 20), load=st.floats(0.2, 3.0), mac=st.sampled_from(["none", "aloha", "sfama"]),
+           shared=st.booleans(), fifo=st.sampled_from([0, 200, 2000]), seed=st.integers(0, 2**16),
+           cut=st.floats(0.2, 1.0), lose=st.integers(0, 40))
+    def check(n, load, mac, shared, fifo, seed, cut, lose):
+        sc = sensors_scene(n, load, 200.0, 300.0, mac=mac, shared=shared, fifo=fifo, seed=seed)
+        meta, recs = _records(sc)
+        recs = recs[:int(len(recs) * cut)]
+        if lose:
+            recs = [r for i, r in enumerate(recs) if i % (lose + 7) != 3]
+        _agree(meta, recs, horizon=5.0)
+
+    check()
+
+
+def test_rounded_is_round_exactly():
+    """The batch's rounding (numpy, with Python's round for the values it cannot be sure of) against round()."""
+    import random
+
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from uwsimnet_zenoh.trace.events import rounded
+
+    rng = random.Random(5)
+    xs = [rng.random() * 10 ** rng.randint(-12, 7) for _ in range(20000)]
+    xs += [k / 1024 for k in range(3000)] + [i * 1e-9 + 5e-10 for i in range(3000)]
+    xs += [i * 1e-3 + 5e-4 for i in range(3000)]
+    xs += [0.0, -0.0, 1e16, 4.6e6, 1e300, math.inf, -math.inf, 2.5e-9, 3, 0, 10**20]
+    for nd in (9, 3):
+        got, want = rounded(xs, nd), [round(x, nd) for x in xs]
+        assert [(type(g), g) for g in got] == [(type(w), w) for w in want]
+        assert [math.copysign(1, g) for g in got] == [math.copysign(1, w) for w in want]
+    assert math.isnan(rounded([math.nan], 9)[0])
+
+    @settings(max_examples=300, deadline=None)
+    @given(st.lists(st.floats(allow_nan=False), max_size=50), st.sampled_from([3, 9]))
+    def check(xs, nd):
+        assert rounded(xs, nd) == [round(x, nd) for x in xs]
+
+    check()
+
+
+def test_batched_lines_are_the_event_lines():
+    """The batch writer (one struct per row, rounding per batch, fallbacks in place) writes the bytes that
+    `event()` writes line by line, on the awkward values and on a run."""
+    values = [(0.0, None), (5e-05, None), (1e-4, 3.0), (12.345678912, 0.0), (3.2e-07, 1e-05), (1e16, 2.5e16),
+              (7.5, math.nan), (7.5, math.inf), (123456.000000001, 499.9995), (1e15, 1e-4), (0.1 + 0.2, 0.001),
+              (3, 2), (2.0000000005, 1.0005)]
+    frame = Frame(3, 255, 17, 40, 37, flow="fl\u00f6w \"q\"\n", dev="d\u00e9v")
+    tr = Tracer(batch=5)
+    batched, one = io.BytesIO(), io.BytesIO()
+    bsink, esink = JsonlSink(batched), JsonlSink(one, batch=7)
+    tr.consume(bsink.write_batch)
+    for k, (t, dist) in enumerate(values * 3):
+        reason, fifo = [(None, None), ("col", None), (None, 80), ("fifo", 0)][k % 4]
+        for implicit in (False, True, 0):
+            tr.emit(t, "rx" if dist is not None else "drop", 2, "d\u00e9v\u2028", frame, reason, fifo, dist, implicit)
+            esink.event(t, "rx" if dist is not None else "drop", 2, "d\u00e9v\u2028", frame, reason, fifo, dist,
+                        implicit)
+    tr.flush()
+    esink.flush()
+    assert batched.getvalue() == one.getvalue()
+    assert sum(tr.counts.values()) == 3 * 3 * len(values)
+
+
+def test_run_trace_is_the_listener_trace(tmp_path):
+    """`uwsimnet run --trace` (batches) writes the same file as the per-event listener of before."""
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(8, 1.5, 300.0, 300.0, mac="sfama", fifo=2000, seed=5)
+    simulate(sc, seed=None, duration=None, trace_path=tmp_path / "b.jsonl", progress=False, metrics=False)
+    net = Network(sc)
+    with open(tmp_path / "e.jsonl", "wb") as fh:
+        sink = JsonlSink(fh)
+        sink.header(net.meta())
+        net.tracer.listen(sink.event)
+        net.run()
+        sink.flush()
+    assert (tmp_path / "b.jsonl").read_bytes() == (tmp_path / "e.jsonl").read_bytes()
+
+
+def test_median_p95_are_numpys():
+    import numpy as np
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from uwsimnet_zenoh.analysis.metrics import median_p95
+
+    @settings(max_examples=400, deadline=None)
+    @given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=400))
+    def check(xs):
+        d = np.array(xs)
+        assert median_p95(d) == (float(np.median(d)), float(np.percentile(d, 95)))
+
+    check()
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 20, 21, 101, 4096, 4097):
+        d = rng.exponential(0.5, n)
+        assert median_p95(d) == (float(np.median(d)), float(np.percentile(d, 95)))

@@ -2,8 +2,9 @@
 
 The one assembly of Network + trace sinks for the virtual clock, used by `uwsimnet run`, the experiments and
 the tests (app/realtime.py is its realtime twin).  The summary is computed online, as the run goes
-(analysis.Accumulator listening on the tracer), so a run without --trace builds no record at all and a run
-with one never reads its trace back; `uwsimnet report` on the trace gives the same numbers."""
+(analysis.Accumulator consuming the tracer's batches of events, as the trace writers do), so a run without
+--trace builds no record at all and a run with one never reads its trace back; `uwsimnet report` on the
+trace gives the same numbers."""
 
 from __future__ import annotations
 
@@ -90,7 +91,7 @@ def simulate(scene, *, seed: int | None, duration: float | None, trace_path: Pat
     acc = None
     if metrics:
         acc = Accumulator(meta)
-        net.tracer.listen(acc.on_event)
+        net.tracer.consume(acc.on_batch)
     failed: BaseException | None = None
     with ExitStack() as files:
         jsonl = None
@@ -102,14 +103,16 @@ def simulate(scene, *, seed: int | None, duration: float | None, trace_path: Pat
                 except ValueError as e:
                     raise UserError(f"{trace_path}: {e}") from None
                 files.callback(arrow.close)
-                net.tracer.listen(arrow.event)
+                net.tracer.consume(arrow.write_batch)
             else:
                 opener = gzip.open if trace_path.suffix == ".gz" else open
                 jsonl = JsonlSink(files.enter_context(opener(trace_path, "wb")))
                 files.callback(jsonl.flush)     # before the file closes (an ExitStack unwinds in reverse)
                 jsonl.header(meta)
-                net.tracer.listen(jsonl.event)
+                net.tracer.consume(jsonl.write_batch)
+        files.callback(net.tracer.flush)        # the last batch, before the writers close (also on ^C ^C)
         failed = _run_to_end(net, progress)
+        net.tracer.flush()
         if net.end is not None:
             if jsonl is not None:
                 jsonl(net.end)                  # flushes the batched events first: the end record is last
