@@ -52,6 +52,16 @@ class LossModel(Protocol):
     def per(self, distance_m: Any, size_bytes: int) -> Any: ...
 
 
+class SinrLossModel(LossModel, Protocol):
+    """What a channel in SINR mode also asks (phy.acoustic's models have it): received power at each
+    distance, the noise power, and the packet error rate at a given SINR."""
+
+    @property
+    def noise_power(self) -> float: ...
+    def received_power(self, distance_m: Any) -> Any: ...
+    def per_from_sinr(self, sinr_db: float, size_bytes: int) -> Any: ...
+
+
 class MacHooks(Protocol):
     """What a modem tells its MAC (mac.Mac implements it; phy never imports mac, as ns-3's UanPhyListener)."""
 
@@ -297,7 +307,9 @@ class Modem:
         self.closed = True
         self.mac.close()
         while self.fifo:
-            self.drop(self.fifo_pop(), "removed")
+            frame = self.fifo_pop()
+            assert frame is not None
+            self.drop(frame, "removed")
         self.rx_channel.detach(self)
 
 
