@@ -22,7 +22,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_user_path import FRAME_TIME, scene_xml  # noqa: E402
 
-from uwsimnet_zenoh import _native  # noqa: E402
+try:                                            # absent before the compiled engine (main before run 5)
+    from uwsimnet_zenoh import _native  # noqa: E402
+except ImportError:
+    _native = None
 from uwsimnet_zenoh.analysis import Accumulator  # noqa: E402
 from uwsimnet_zenoh.app.virtual import load_scene_file  # noqa: E402
 from uwsimnet_zenoh.engine.network import Network  # noqa: E402
@@ -59,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--modes", default="bare,metrics,trace")
     a = ap.parse_args(argv)
     load = os.getloadavg()
-    print(f"# compiled: {', '.join(_native.loaded()) or 'none (pure Python)'}; load {load[0]:.2f}")
+    print(f"# {_native.status() if _native else 'pure Python (no uwsimnet_zenoh._native)'}; load {load[0]:.2f}")
     with tempfile.TemporaryDirectory() as d:
         for n in (int(x) for x in a.nodes.split(",")):
             path = Path(d) / f"aloha-half-{n}.xml"
