@@ -3,12 +3,16 @@ not: the package then runs as pure Python, unchanged.  `make` runs this after in
 before the tests; it does nothing when the build beside the sources matches them (_native.json).
 
     .venv/bin/python build_native.py            # build if stale; one line either way when it builds
+    .venv/bin/python build_native.py --force    # try again after a failed build of the same sources
     .venv/bin/python build_native.py --clean    # remove the build (pure Python from then on)
+
+A failed build is said once: the same sources are not tried again until one changes (or --force, `make clean`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib
 import importlib.machinery
 import json
 import os
@@ -26,6 +30,7 @@ from uwsimnet_zenoh import _native  # noqa: E402
 MYPY = "mypy==2.4.1"                       # mypyc comes with mypy; the version the build was measured with
 BUILD = ROOT / "build" / "native"
 LOG = BUILD / "build.log"
+FAILED = BUILD / "failed.json"                  # the sources of the last failed build
 
 
 def built_files() -> list[Path]:
@@ -38,6 +43,7 @@ def clean() -> None:
 
 
 def have_mypyc() -> bool:
+    importlib.invalidate_caches()                   # after a pip install in this process
     try:
         import mypyc.build  # noqa: F401, PLC0415
     except ImportError:
@@ -69,32 +75,41 @@ def main(argv: list[str]) -> int:
     if _native.stale_reason() is None:
         return 0                                    # up to date
     sources = _native.digests()                     # what is compiled (an edit during the build: stale)
+    if "--force" not in argv and FAILED.exists() and json.loads(FAILED.read_text()) == sources:
+        return 0                                    # failed with these sources already: said then
     clean()                                         # a failed build leaves no extension behind
+    FAILED.unlink(missing_ok=True)
     t0 = time.monotonic()
     BUILD.mkdir(parents=True, exist_ok=True)
-    with open(LOG, "w") as log:
-        if not have_mypyc():
-            r = subprocess.run([sys.executable, "-m", "pip", "install", "-q", MYPY], stdout=log, stderr=log)
-            if r.returncode != 0 or not have_mypyc():
-                print(f"uwsimnet: the engine runs as pure Python ({MYPY} could not be installed: {LOG})")
-                return 0
-        try:
-            compile_all(log)
-        except (subprocess.CalledProcessError, OSError) as e:
-            with contextlib.suppress(OSError):
-                clean()
-            print(f"uwsimnet: the engine runs as pure Python (the mypyc build failed: {type(e).__name__};"
-                  f" {LOG})")
-            return 0
-    missing = [p.name for p in built_files() if not p.exists()]
-    if missing:
-        clean()
-        print(f"uwsimnet: the engine runs as pure Python (the build made no {missing[0]}; {LOG})")
+    code = build()
+    if code is not None:
+        FAILED.write_text(json.dumps(sources))
+        print(f"uwsimnet: the engine runs as pure Python ({code}; {LOG})")
         return 0
     Path(_native.MANIFEST).write_text(json.dumps(
         {"suffix": importlib.machinery.EXTENSION_SUFFIXES[0], "mypy": MYPY, "modules": sources}, indent=1) + "\n")
     print(f"uwsimnet: compiled {len(_native.MODULES)} engine modules with mypyc in {time.monotonic() - t0:.0f} s")
     return 0
+
+
+def build() -> str | None:
+    """Build the extensions; None when done, else why not (and nothing built is left behind)."""
+    with open(LOG, "w") as log:
+        if not have_mypyc():
+            r = subprocess.run([sys.executable, "-m", "pip", "install", "-q", MYPY], stdout=log, stderr=log)
+            if r.returncode != 0 or not have_mypyc():
+                return f"{MYPY} could not be installed"
+        try:
+            compile_all(log)
+        except (subprocess.CalledProcessError, OSError) as e:
+            with contextlib.suppress(OSError):
+                clean()
+            return f"the mypyc build failed: {type(e).__name__}"
+    missing = [p.name for p in built_files() if not p.exists()]
+    if missing:
+        clean()
+        return f"the build made no {missing[0]}"
+    return None
 
 
 if __name__ == "__main__":
