@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: paper test lint bench clean ros2-peers ros2-oracle
+.PHONY: paper test lint bench clean native ros2-peers ros2-oracle
 
 $(STAMP): pyproject.toml gli_clients/python/pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) on PATH (or make PY=python3)"; exit 2; }
@@ -12,23 +12,29 @@ $(STAMP): pyproject.toml gli_clients/python/pyproject.toml
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e gli_clients/python
 	$(BIN)/pip install -q -e '.[dev]'
+	@$(BIN)/python build_native.py
 	@touch $(STAMP)
 
+## The engine's hot modules compiled with mypyc (uwsimnet_zenoh/_native.py lists them; ~1 min): rebuilt when
+## one of their sources changed, pure Python (said in one line) if the build fails
+native: $(STAMP)
+	@$(BIN)/python build_native.py
+
 ## The paper's physical-layer experiment (Section 3.1): trace, report and figures in out/phy-layer/
-paper: $(STAMP)
+paper: native
 	$(BIN)/uwsimnet experiment phy-layer --out out/phy-layer
 
 ## The test suite (what CI runs): two workers (pytest-xdist), each test file on one of them (module fixtures,
 ## routers and namespaces set up once per file); `make test TESTFLAGS=` runs it in one process
 TESTFLAGS ?= -n 2 --dist loadfile
-test: $(STAMP)
+test: native
 	$(BIN)/ruff check uwsimnet_zenoh tests bench
 	$(BIN)/python -m pytest -q -p no:cacheprovider $(TESTFLAGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
-bench: $(STAMP)
+bench: native
 	$(BIN)/python bench/bench_engine.py
 
 ## ROS 2 peers on the Zenoh versions rmw_zenoh ships (tests/test_ros2_live.py uses them when present)
@@ -45,4 +51,5 @@ ros2-oracle:
 	  || { nice -n 10 bash tests/ros2_oracle/setup.sh .venv-ros2-jazzy $(PY) && echo $$s > .venv-ros2-jazzy/.stamp; }
 
 clean:
-	rm -rf $(VENV) out .venv-zenoh-* .venv-ros2-jazzy
+	rm -rf $(VENV) out .venv-zenoh-* .venv-ros2-jazzy build/native
+	rm -f uwsimnet_zenoh/_native.json; find uwsimnet_zenoh -name "*.so" -delete

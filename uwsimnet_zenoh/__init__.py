@@ -19,6 +19,10 @@ from __future__ import annotations
 from importlib import import_module
 from typing import Any
 
+from . import _native
+
+_native.guard()         # before any engine module: a compiled build runs only if it matches its sources
+
 _FACE = {
     "load_scene": "uwsimnet_zenoh.scene.load",
     "load_scene_text": "uwsimnet_zenoh.scene.load",

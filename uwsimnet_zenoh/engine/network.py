@@ -9,7 +9,7 @@ a flow or a device does not shift the random numbers every other part draws.
 from __future__ import annotations
 
 import hashlib
-from typing import Any
+from typing import Any, cast
 
 from ..kernel.frame import Frame
 from ..kernel.scheduler import Scheduler
@@ -23,11 +23,13 @@ from .build import build_modem, channel_options
 
 
 class Network:
-    def __init__(self, scene: Scene, *, seed: int | None = None, duration: float | None = None,
+    # `float | int`: a duration given as an int stays one (the trace's meta says 60, not 60.0); compiled code
+    # would turn a `float` annotation into a C double
+    def __init__(self, scene: Scene, *, seed: int | None = None, duration: float | int | None = None,
                  flows: bool = True) -> None:
         self.scene = scene
         self.seed = scene.simulation.seed if seed is None else seed
-        self.duration = duration if duration is not None else scene.end_time()
+        self.duration: float | int = duration if duration is not None else scene.end_time()
         self.sched = Scheduler()
         self.tracer = Tracer()
         self.poses = PoseTable([v.name for v in scene.vehicles])
@@ -123,12 +125,12 @@ class Network:
                     held.setdefault(id(a), (None, a))
         now = self.sched.now
         n = 0
-        for m, f in sorted(held.values(), key=lambda mf: (mf[1].dev, mf[1].seq)):
+        for holder, f in sorted(held.values(), key=lambda mf: (mf[1].dev, mf[1].seq)):
             if f.kind != "data" or f.final is not None:
                 continue
             n += 1
-            if m is not None:
-                m.drop(f, reason)
+            if holder is not None:
+                holder.drop(f, reason)
                 continue
             sender = self.modems.get(f.dev) or self._gone.get(f.dev)
             if sender is not None:
@@ -161,7 +163,7 @@ class Network:
                                "arrival": f.arrival, "start": f.start, "stop": f.stop} for f in s.flows},
             "devices": {m.id: {"address": m.address, "vehicle": m.vehicle, "tx_channel": m.tx_channel.id,
                                "rx_channel": m.rx_channel.id, "bitrate": m.bitrate,
-                               "header_bytes": m.header_bytes, "mac": m.cfg.mac.name,
+                               "header_bytes": m.header_bytes, "mac": cast(Device, m.cfg).mac.name,
                                # only when set: traces of scenes without a framing keep their bytes
                                **({"framing": m.framing.name} if m.framing is not None else {})}
                         for m in self.modems.values()},

@@ -32,24 +32,25 @@ class Interrupted(Exception):  # noqa: N818 - it is what happened, not an error
 
 
 class _Interrupt(Event):
-    """The event `interrupt()` pushes: reading its `cancelled` (the first thing `run` does with an event it
-    pops, before touching `now`) raises Interrupted, so an interrupt costs the other events nothing and
-    time never goes back, even when the signal came between a pop and the event's `now`."""
+    """The event `interrupt()` pushes: born cancelled, so the loops that skip cancelled events look at it
+    only on that rare path (`_skip`), where it raises Interrupted: an interrupt costs the other events
+    nothing and time never goes back, even when the signal came between a pop and the event's `now`."""
 
     __slots__ = ()
 
     def __init__(self, t: float) -> None:
-        self.t = t
-        self.fn = _never
-        self.args = ()
-
-    @property  # type: ignore[override]
-    def cancelled(self) -> bool:
-        raise Interrupted
+        super().__init__(t, _never, ())
+        self.cancelled = True
 
 
 def _never() -> None:
     raise Interrupted
+
+
+def _skip(ev: Event) -> None:
+    """A cancelled event was popped or found on top: an interrupt raises, any other is dropped."""
+    if type(ev) is _Interrupt:
+        raise Interrupted
 
 
 class Scheduler:
@@ -75,6 +76,7 @@ class Scheduler:
         """Time of the next live event, dropping cancelled ones from the top."""
         heap = self._heap
         while heap and heap[0][2].cancelled:
+            _skip(heap[0][2])
             heapq.heappop(heap)
         return heap[0][0] if heap else None
 
@@ -82,6 +84,7 @@ class Scheduler:
         """Run the next event (the caller has checked there is one)."""
         t, _, ev = heapq.heappop(self._heap)
         if ev.cancelled:
+            _skip(ev)
             return
         self.now = t
         self.events_run += 1
@@ -101,6 +104,7 @@ class Scheduler:
             while heap and heap[0][0] <= until:
                 t, _, ev = pop(heap)
                 if ev.cancelled:
+                    _skip(ev)
                     continue
                 self.now = t
                 n += 1

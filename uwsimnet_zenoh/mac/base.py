@@ -11,8 +11,10 @@ under the entry-point group `uwsimnet.mac`.  docs/mac.md walks through an exampl
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, Protocol
+
+from mypy_extensions import mypyc_attr
 
 if TYPE_CHECKING:
     from ..kernel.frame import Frame
@@ -55,13 +57,14 @@ class MacContext(Protocol):
     def random(self) -> float: ...
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)      # compiled (uwsimnet_zenoh._native): user MACs subclass it
 class Mac:
     """Base class; the defaults make a MAC that never overhears and ignores failed receptions."""
 
     overhear = False
     """True if the MAC must see intact frames addressed to others (e.g. RTS/CTS for deferral)."""
 
-    def __init__(self, ctx: MacContext, params: dict[str, str]) -> None:
+    def __init__(self, ctx: MacContext, params: Mapping[str, str]) -> None:
         self.ctx = ctx
         self.params = params
 
@@ -102,6 +105,7 @@ IDLE = "idle"
 """The state of a OneFrameMac with no frame in service."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class OneFrameMac(Mac):
     """A MAC that serves one frame at a time (`cur`, taken from the FIFO when it is idle), with one pending
     timer: CS-ALOHA and S-FAMA.  What is common to them lives here: taking the next frame, and giving
@@ -110,7 +114,7 @@ class OneFrameMac(Mac):
 
     max_retries: int
 
-    def __init__(self, ctx: MacContext, params: dict[str, str]) -> None:
+    def __init__(self, ctx: MacContext, params: Mapping[str, str]) -> None:
         super().__init__(ctx, params)
         self.state = IDLE
         self.cur: Frame | None = None
@@ -157,6 +161,7 @@ class OneFrameMac(Mac):
         if self.max_retries < 0 or self.fails <= self.max_retries:
             return True
         frame = self.cur
+        assert frame is not None            # a retry is always of the frame in service
         self.cur = None
         self.ctx.drop(frame, "retry", event="failed")      # one final status: failed (reason retry)
         self._done()

@@ -20,21 +20,28 @@ hands the frame to its application, which filters; traced `rx` with `implicit: t
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+from mypy_extensions import mypyc_attr
+
 from ..kernel.frame import Frame
-from .base import Mac
+from .base import Mac, MacContext
 from .registry import register
+
+if TYPE_CHECKING:
+    from ..kernel.scheduler import Event
 
 IPG = 100e-6
 """dccomms_ros CustomROSCommsDevice::_fixedIPGmicros: the gap before a queued frame, s."""
 DELIVERY = ("all", "addressee")
 
 
-@register("none", "nomac", "")
+@mypyc_attr(allow_interpreted_subclasses=True)      # compiled: registered below (a decorator would not be)
 class NoMac(Mac):
-    _wake = None
-
-    def __init__(self, ctx, params: dict[str, str]) -> None:
+    def __init__(self, ctx: MacContext, params: Mapping[str, str]) -> None:
         super().__init__(ctx, params)
+        self._wake: Event | None = None
         delivery = params.get("delivery", "all").strip().lower()
         if delivery not in DELIVERY:
             raise ValueError(f"macProtocol delivery: expected all or addressee, got {params['delivery']!r}")
@@ -70,8 +77,13 @@ class NoMac(Mac):
             if until > ctx.now:
                 self._wake = ctx.timer(until - ctx.now, self._woken)
                 return
-        ctx.transmit(ctx.fifo_pop(), IPG if queued else None)
+        frame = ctx.fifo_pop()
+        assert frame is not None            # the FIFO is not empty (checked above)
+        ctx.transmit(frame, IPG if queued else None)
 
     def _woken(self) -> None:
         self._wake = None
         self._pump(queued=True)
+
+
+register("none", "nomac", "")(NoMac)

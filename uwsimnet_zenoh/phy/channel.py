@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from ..kernel.scheduler import Scheduler
     from ..mobility.trajectory import PoseTable
     from ..trace.events import Tracer
-    from .modem import Modem
+    from .modem import Modem, SinrLossModel
 
 INF = float("inf")
 TOUCH = 1e-9
@@ -41,6 +41,12 @@ LIST_SLOTS = 512
 slots one by one (the addressee, the log's transmissions at one slot), and a list item is a Python float
 read in a few ns where a numpy scalar costs ~100 ns to make and more to add or compare.  The values are the
 same doubles either way (the same additions give the same results), so the choice changes no outcome."""
+
+Slots = list[float] | np.ndarray
+"""Per-slot values: a Python list on a small channel (LIST_SLOTS), else the numpy array itself."""
+Geometry = tuple[np.ndarray, np.ndarray, np.ndarray, float, Slots, Slots, list[bool] | np.ndarray]
+"""What `Channel._geometry` gives: distance, delay, reach (arrays), the longest delay, then the same three
+as `Slots`."""
 
 GEO_CACHE_SLOTS = 8_000_000
 """At most this many (sender, listener) pairs of cached geometry per channel (17 bytes each): every sender
@@ -75,6 +81,12 @@ class Transmission:
         self.max_end = max_end
         self.pow: np.ndarray | None = None    # received power per listener slot, linear (SINR mode only)
         self.acq: dict[int, bool] | None = None   # slot -> acquired (SINR mode, capture "first" only)
+
+    @property
+    def powers(self) -> np.ndarray:
+        """SINR mode: the received power per slot (set before the transmission enters the air log)."""
+        assert self.pow is not None, "a transmission without powers in SINR mode"
+        return self.pow
 
     @property
     def arr(self) -> np.ndarray:
@@ -118,7 +130,7 @@ class Channel:
         self._overhearing: list[int] = []
         self.log: deque[Transmission] = deque()
         self._members = 0                           # bumped on attach/detach (invalidates geometry)
-        self._geo_cache: dict[str, tuple] = {}
+        self._geo_cache: dict[str, tuple[int, int, Geometry]] = {}
         self._slots: tuple | None = None            # (pose version, members, positions, alive & known)
         self._longest = 0.0
         self.transmissions = 0
@@ -154,7 +166,7 @@ class Channel:
         return self.min_prop_s + self.prop_s_per_m * max_distance
 
     # -- the per-frame path --------------------------------------------------------------------
-    def _geometry(self, sender: Modem, now: float) -> tuple:
+    def _geometry(self, sender: Modem, now: float) -> Geometry:
         """Distance, propagation delay (inf where out of range) and reach from `sender` to every slot, the
         longest finite delay, then the same three as Python lists on a small channel (LIST_SLOTS; else the
         arrays again).
@@ -191,6 +203,7 @@ class Channel:
             dist[sender.rx_slot] = 0.0
         # the longest finite delay (the own slot's 0 included): reach of the transmission
         max_delay = float(np.max(delay, where=ok, initial=0.0))
+        geo: Geometry
         if len(veh) <= LIST_SLOTS:
             geo = (dist, delay, ok, max_delay, dist.tolist(), delay.tolist(), ok.tolist())
         else:
@@ -250,22 +263,24 @@ class Channel:
             return
 
         reach = ok[targets]
-        per = sender.error.per(dist[targets], frame.size) if reach.any() else None
+        pers = sender.error.per(dist[targets], frame.size) if reach.any() else None
         rnd = sender.loss_random
         at = self.sched.at
-        end = tx.end
+        ends = tx.end
         for n, j in enumerate(targets):
             if not reach[n]:
                 if n < intended:
                     self._unreachable(sender, frame, j, now, dist)
                 continue
+            assert pers is not None             # some target is reached
             if sinr:
-                at(float(end[j]), self._reception_end_sinr, tx, j, rnd(), float(per[n]), n < intended)
+                at(float(ends[j]), self._reception_end_sinr, tx, j, rnd(), float(pers[n]), n < intended)
             else:
-                at(float(end[j]), self._reception_end, tx, j, rnd() < per[n], n < intended)
+                at(float(ends[j]), self._reception_end, tx, j, bool(rnd() < pers[n]), n < intended)
 
     def _unreachable(self, sender: Modem, frame: Frame, j: int, now: float, dist: np.ndarray) -> None:
         m = self.listeners[j]
+        assert m is not None                    # targets are listeners still attached
         known = self.poses.known
         why = "nopose" if not (known[self._veh[j]] and known[sender.vehicle_index]) else "range"
         self.tracer.emit(now, "drop", self.id, m.id, frame, why, dist=float(dist[j]))
@@ -305,7 +320,7 @@ class Channel:
         hit = self._pow_cache.get(sender.id)
         if hit is not None and hit[0] is dist:
             return hit[1]
-        p = sender.error.received_power(dist)
+        p = cast("SinrLossModel", sender.error).received_power(dist)
         self._pow_cache[sender.id] = (dist, p)
         return p
 
@@ -322,7 +337,7 @@ class Channel:
                 if g.sender.rx_slot == j and g.sender.rx_channel is self:
                     own = True                  # half duplex: transmitting while this frame arrives
                 else:
-                    spans.append((g.arr[j], g.end[j], g.pow[j]))
+                    spans.append((g.arr[j], g.end[j], g.powers[j]))
         per_sinr = per_snr
         if own:
             per_sinr = 1.0
@@ -331,8 +346,8 @@ class Channel:
             if not spans:
                 per_snr = 1.0
         elif spans and u >= per_snr:
-            err = tx.sender.error
-            sinr_db = min_sinr_db(tx.pow[j], err.noise_power, spans, a)
+            err = cast("SinrLossModel", tx.sender.error)
+            sinr_db = min_sinr_db(tx.powers[j], err.noise_power, spans, a)
             thr = self.sinr_threshold_db
             if thr is not None:
                 per_sinr = 1.0 if sinr_db < thr else per_snr
@@ -374,9 +389,10 @@ class Channel:
             if h.arr[j] < a and self._acquired(h, j):
                 ok = False                      # already locked onto h
                 break
-            interference += h.pow[j]
+            interference += h.powers[j]
         if ok:
-            ok = 10.0 * math.log10(g.pow[j] / (g.sender.error.noise_power + interference)) > self.lock_first_db
+            noise = cast("SinrLossModel", g.sender.error).noise_power
+            ok = 10.0 * math.log10(g.powers[j] / (noise + interference)) > cast(float, self.lock_first_db)
         memo[j] = ok
         return ok
 

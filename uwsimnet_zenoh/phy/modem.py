@@ -52,6 +52,16 @@ class LossModel(Protocol):
     def per(self, distance_m: Any, size_bytes: int) -> Any: ...
 
 
+class SinrLossModel(LossModel, Protocol):
+    """What a channel in SINR mode also asks (phy.acoustic's models have it): received power at each
+    distance, the noise power, and the packet error rate at a given SINR."""
+
+    @property
+    def noise_power(self) -> float: ...
+    def received_power(self, distance_m: Any) -> Any: ...
+    def per_from_sinr(self, sinr_db: float, size_bytes: int) -> Any: ...
+
+
 class MacHooks(Protocol):
     """What a modem tells its MAC (mac.Mac implements it; phy never imports mac, as ns-3's UanPhyListener)."""
 
@@ -94,6 +104,11 @@ class Modem:
         self.fifo: deque[Frame] = deque()
         self.fifo_bytes = 0
         self.fifo_cap = cfg.tx_fifo_bytes
+        self.max_frame_bytes = cfg.max_frame_bytes
+        self._tx_delay = cfg.intrinsic_tx_s           # the per-frame path reads these (a device never changes)
+        self._tx_jitter = cfg.jitter_tx_s
+        self._rx_delay = cfg.intrinsic_rx_s
+        self._rx_jitter = cfg.jitter_rx_s
         self.phy_busy = False
         self.closed = False
         self.half_duplex = tx_channel is rx_channel
@@ -144,7 +159,7 @@ class Modem:
         if refuse is None:
             if self.closed:
                 refuse = "removed"
-            elif size > self.cfg.max_frame_bytes or (
+            elif size > self.max_frame_bytes or (
                     self.framing is not None and self.framing.check_payload(payload) is not None):
                 refuse = "size"
             elif dst != BROADCAST and not getattr(mac, "implicit_broadcast", False) \
@@ -188,13 +203,12 @@ class Modem:
             raise RuntimeError(f"{self.id}: transmit while the transmitter is busy ({frame})")
         self.phy_busy = True
         frame.tries += 1
-        cfg = self.cfg
         if delay is not None:
             d = delay
         else:
-            d = cfg.intrinsic_tx_s
-            if cfg.jitter_tx_s > 0:
-                d = max(0.0, self._jitter.gauss(d, cfg.jitter_tx_s))
+            d = self._tx_delay
+            if self._tx_jitter > 0:
+                d = max(0.0, self._jitter.gauss(d, self._tx_jitter))
         if d > 0:
             self.sched.after(d, self._on_air, frame)
         else:
@@ -220,10 +234,9 @@ class Modem:
         return self.rx_channel.busy_until(self.rx_slot)
 
     def deliver(self, frame: Frame) -> None:
-        cfg = self.cfg
-        d = cfg.intrinsic_rx_s
-        if cfg.jitter_rx_s > 0:
-            d = max(0.0, self._jitter.gauss(d, cfg.jitter_rx_s))
+        d = self._rx_delay
+        if self._rx_jitter > 0:
+            d = max(0.0, self._jitter.gauss(d, self._rx_jitter))
         t = max(self.sched.now + d, self._last_delivery)   # a modem hands frames up in order
         self._last_delivery = t
         if t > self.sched.now:
@@ -297,7 +310,9 @@ class Modem:
         self.closed = True
         self.mac.close()
         while self.fifo:
-            self.drop(self.fifo_pop(), "removed")
+            frame = self.fifo_pop()
+            assert frame is not None
+            self.drop(frame, "removed")
         self.rx_channel.detach(self)
 
 

@@ -20,6 +20,8 @@ class FlowSource:
         self.modem = modem
         self.sched = sched
         self.stop = min(end, spec.stop) if spec.stop is not None else end
+        self._dst, self._size, self._name = spec.dst, spec.size, spec.name     # read per frame
+        self._periodic = spec.arrival == "periodic"
         self._rng = random.Random(seed)
         self._gap: Callable[[], float]
         if spec.arrival == "poisson":
@@ -34,13 +36,13 @@ class FlowSource:
             sched.at(first, self._fire)
 
     def _fire(self) -> None:
-        spec = self.spec
         if self.sched.now >= self.stop:      # stopped early (its modem was removed)
             return
-        self.modem.send(spec.dst, spec.size, flow=spec.name)
+        self.modem.send(self._dst, self._size, flow=self._name)
         self.sent += 1
         nxt = self.sched.now + self._gap()
-        if spec.arrival == "periodic":          # no drift from repeated float additions
+        if self._periodic:                      # no drift from repeated float additions
+            spec = self.spec
             nxt = spec.start + self.sent * spec.interval
         if nxt < self.stop:
             self.sched.at(nxt, self._fire)

@@ -1,0 +1,131 @@
+"""The compiled engine (uwsimnet_zenoh/_native.py, build_native.py): it gives the same trace bytes as the pure
+Python one, and a build that no longer matches its sources never runs.
+
+The tests that need a build skip without one (`make` builds it when it can; the pure run is then all there is).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from uwsimnet_zenoh import _native
+
+ROOT = Path(__file__).resolve().parent.parent
+BUILT = _native.stale_reason() is None and os.environ.get(_native.PURE_ENV, "") in ("", "0")
+needs_build = pytest.mark.skipif(not BUILT, reason=f"no compiled build here ({_native.status()})")
+
+PROBE = """
+import json, sys
+from uwsimnet_zenoh import _native
+import uwsimnet_zenoh.engine.network, uwsimnet_zenoh.mac.nomac
+from uwsimnet_zenoh.kernel import frame
+print(json.dumps({"loaded": _native.loaded(), "status": _native.status(), "edited": hasattr(frame, "EDITED"),
+                  "frame_file": frame.__file__}))
+"""
+
+
+def probe(env_extra: dict[str, str] | None = None, pythonpath: Path | None = None) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != _native.PURE_ENV}
+    env.update(env_extra or {})
+    if pythonpath is not None:
+        env["PYTHONPATH"] = str(pythonpath)
+    out = subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, check=True,
+                         cwd=pythonpath or ROOT)
+    return json.loads(out.stdout)
+
+
+def test_pure_flag_imports_every_listed_module_from_source():
+    got = probe({_native.PURE_ENV: "1"})
+    assert got["loaded"] == []
+    assert got["frame_file"].endswith(".py")
+    assert got["status"] == "pure Python: UWSIMNET_PURE=1"
+
+
+def test_the_list_names_modules_that_exist():
+    for m in _native.MODULES:
+        assert Path(_native.source(m)).is_file(), m
+
+
+@needs_build
+def test_this_process_runs_the_compiled_engine():
+    import uwsimnet_zenoh.engine.network  # noqa: F401
+    import uwsimnet_zenoh.mac.nomac  # noqa: F401
+
+    assert _native.loaded() == list(_native.MODULES)
+
+
+def _copy_package(tmp_path: Path) -> Path:
+    dst = tmp_path / "uwsimnet_zenoh"
+    shutil.copytree(ROOT / "uwsimnet_zenoh", dst, ignore=shutil.ignore_patterns("__pycache__"))
+    return tmp_path
+
+
+@needs_build
+def test_a_copy_of_the_build_runs_compiled(tmp_path):
+    """The control for the next test: the copied tree, untouched, loads its extensions."""
+    got = probe(pythonpath=_copy_package(tmp_path))
+    assert got["loaded"] == list(_native.MODULES)
+    assert got["frame_file"].startswith(str(tmp_path))
+
+
+@needs_build
+@pytest.mark.parametrize("module", ["uwsimnet_zenoh.kernel.frame", "uwsimnet_zenoh.mac.nomac"])
+def test_an_edited_source_makes_the_whole_build_stale(tmp_path, module):
+    """A source edited after the build: every listed module is imported from its .py (the edit runs), none
+    of the extensions; not only the edited one, since the compiled modules call each other directly."""
+    root = _copy_package(tmp_path)
+    src = root / Path(*module.split(".")).with_suffix(".py")
+    text = src.read_text()
+    src.write_text(text + ("\nEDITED = True\n" if module.endswith("frame") else "\n# a comment only\n"))
+    got = probe(pythonpath=root)
+    assert got["loaded"] == []
+    assert got["status"] == "pure Python: a source changed since the build (stale)"
+    assert got["edited"] == module.endswith("frame")
+    assert got["frame_file"] == str(root / "uwsimnet_zenoh" / "kernel" / "frame.py")
+
+
+@needs_build
+def test_a_missing_extension_or_manifest_means_pure(tmp_path):
+    root = _copy_package(tmp_path)
+    ext = Path(_native.extension("uwsimnet_zenoh.phy.channel"))
+    (root / ext.relative_to(ROOT)).unlink()
+    got = probe(pythonpath=root)
+    assert got["loaded"] == [] and got["status"].startswith("pure Python: extension missing")
+    (root / "uwsimnet_zenoh" / "_native.json").unlink()
+    assert probe(pythonpath=root)["status"] == "pure Python: not compiled"
+
+
+RUN = """
+import sys
+from pathlib import Path
+from uwsimnet_zenoh import _native
+from uwsimnet_zenoh.app.virtual import load_scene_file, run_virtual
+sc = load_scene_file(sys.argv[1])
+run_virtual(sc, seed=int(sys.argv[2]), duration=float(sys.argv[3]), trace_path=Path(sys.argv[4]), progress=False)
+print(len(_native.loaded()))
+"""
+
+SCENES = [("scenes/paper/phy-layer-rf.xml", "3", "60"), ("scenes/paper/twinbot-sfama.xml", "1", "60"),
+          ("scenes/examples/acoustic-capture.xml", "1", "60")]
+
+
+@needs_build
+@pytest.mark.parametrize("scene, seed, duration", SCENES)
+def test_compiled_and_pure_give_the_same_trace_bytes(tmp_path, scene, seed, duration):
+    outs = []
+    for pure in ("1", "0"):
+        out = tmp_path / f"pure{pure}.jsonl"
+        env = {**os.environ, _native.PURE_ENV: pure}
+        r = subprocess.run([sys.executable, "-c", RUN, str(ROOT / scene), seed, duration, str(out)], env=env,
+                           capture_output=True, text=True, check=True, cwd=ROOT)
+        assert int(r.stdout.split()[-1]) == (0 if pure == "1" else len(_native.MODULES))
+        outs.append(out.read_bytes())
+    assert outs[0].count(b"\n") > 100
+    assert outs[0] == outs[1]
