@@ -17,14 +17,12 @@ tracing plug-in is disabled and the run goes on, anything else stops it) or the 
 
 from __future__ import annotations
 
-import contextlib
 import faulthandler
 import logging
 import math
 import os
 import signal
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -180,20 +178,14 @@ def run_realtime(scene: Scene, args: Any) -> int:
     channels = parse_channels(getattr(args, "channels", None), scene)
     external = parse_external(getattr(args, "external_flows", None), scene)
     hosted, foreign = select_channels(scene, channels)
-    trace = args.trace or scene.tracing.log_to_file
-    if not trace:                                   # a trace for the summary only, removed afterwards
-        fd, tmp = tempfile.mkstemp(suffix=".jsonl", prefix="uwsimnet-rt-")
-        os.close(fd)
-        try:
-            return _run(scene, args, duration, channels, external, hosted, foreign, tmp, True)
-        finally:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-    return _run(scene, args, duration, channels, external, hosted, foreign, trace, False)
+    trace = args.trace or scene.tracing.log_to_file or None
+    return _run(scene, args, duration, channels, external, hosted, foreign, trace)
 
 
 def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | None, external: set[str],
-         hosted: Scene, foreign: set[str], trace: str, tmp: bool) -> int:
+         hosted: Scene, foreign: set[str], trace: str | None) -> int:
+    """The realtime run; `trace` None: no trace file (the summary's metrics are online either way)."""
+    from ..analysis import Accumulator
     from ..bus.broker import Broker
     from ..kernel.realtime import SPIN, Deferred, RealtimeClock
     from ..trace.events import JsonlSink
@@ -254,24 +246,27 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
         ros = None
         fh = None
         jsonl = None
+        meta = net.meta()
+        meta.update(clock="realtime", world=world, duration=duration,
+                    channels=sorted(net.channels), external_flows=sorted(external))
+        acc = Accumulator(meta)                 # the summary's metrics, online (batches: on the engine
+        net.tracer.consume(acc.on_batch)        # thread, one call per Tracer.batch events; read at the end)
         try:
-            Path(trace).parent.mkdir(parents=True, exist_ok=True)
-            fh = open(trace, "w", encoding="utf-8")  # noqa: SIM115 - closed in finally, after the engine
-            sink = JsonlSink(fh)
-            meta = net.meta()
-            meta.update(clock="realtime", world=world, duration=duration,
-                        channels=sorted(net.channels), external_flows=sorted(external))
-            sink.header(meta)
-            jsonl = Deferred(sink)              # written when the engine is idle, not between event and rx
-            net.tracer.add(jsonl)
-            last_flush = [time.monotonic()]
+            if trace is not None:
+                Path(trace).parent.mkdir(parents=True, exist_ok=True)
+                fh = open(trace, "w", encoding="utf-8")  # noqa: SIM115 - closed in finally, after the engine
+                sink = JsonlSink(fh)
+                sink.header(meta)
+                jsonl = Deferred(sink)          # written when the engine is idle, not between event and rx
+                net.tracer.add(jsonl)
+                last_flush = [time.monotonic()]
 
-            def write_trace() -> None:
-                jsonl.flush()
-                if time.monotonic() - last_flush[0] > 1.0:      # on disk every second (tail -f works)
-                    fh.flush()
-                    last_flush[0] = time.monotonic()
-            clock.idle_hooks.append(write_trace)
+                def write_trace() -> None:
+                    jsonl.flush()
+                    if time.monotonic() - last_flush[0] > 1.0:      # on disk every second (tail -f works)
+                        fh.flush()
+                        last_flush[0] = time.monotonic()
+                clock.idle_hooks.append(write_trace)
             if plugin is not None:
                 net.tracer.add(plugin)
             try:
@@ -306,8 +301,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
             clock.start()
             until = f"for {duration:g} s" if duration is not None else "until Ctrl-C"
             pace = "realtime clock" if clock.speed == 1.0 else f"realtime clock x{clock.speed:g}"
-            print(f"uwsimnet: running {until} ({pace}); trace {trace if not tmp else '(summary only)'}",
-                  flush=True)
+            print(f"uwsimnet: running {until} ({pace}); trace {trace or '(none: summary only)'}", flush=True)
             while not stop.event.is_set() and not clock.done.is_set() and not failed.is_set():
                 stop.event.wait(0.2)
             if stop.event.is_set():
@@ -339,16 +333,19 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 broker.close()
                 summary["edge"] = broker.edge_summary()
                 summary["ingress_warn"] = broker.ingress_warn_s
+            end = net.end_record(reason, **extra)
+            net.tracer.flush()                  # the metrics' last batch
+            acc.ended = end["t"]
             if fh is not None:
                 if jsonl is not None:
                     jsonl.flush()
-                    JsonlSink(fh)(net.end_record(reason, **extra))
+                    JsonlSink(fh)(end)
                 fh.flush()
                 fh.close()
             session.close()
             faulthandler.cancel_dump_traceback_later()
-    _summary(trace, summary, net)
-    if not tmp:
+    _summary(acc, summary, net)
+    if trace is not None:
         print(f"trace: {trace}")
     e = clock.fatal or clock.first_error
     if e is not None:
@@ -360,17 +357,13 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
     return 0
 
 
-def _summary(trace: str, s: dict[str, Any], net: Any) -> None:
+def _summary(acc: Any, s: dict[str, Any], net: Any) -> None:
     from rich.console import Console
 
-    from ..analysis import TraceError, flow_metrics
     from .virtual import show_metrics
 
     console = Console()
-    try:
-        show_metrics(flow_metrics(trace))
-    except TraceError as e:
-        console.print(f"(no report: {e})")
+    show_metrics(acc.result().flows)
     bad = {k: v for k, v in (s.get("bus") or {}).items() if k not in ("tx_messages", "poses")}
     if s.get("ros2"):
         bad["ros2"] = s["ros2"]
