@@ -15,7 +15,8 @@ from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.kernel.realtime import RealtimeClock, run_for
 from uwsimnet_zenoh.kernel.scheduler import Scheduler
 
-SLACK = 0.05     # s: what a loaded machine may add
+SLACK = 0.25     # s: what a loaded machine may add (60-80 ms seen with the suite's two workers and other jobs);
+#                   the modelled times below are long enough that a wrong clock misses by more than that
 
 
 @pytest.fixture
@@ -37,13 +38,13 @@ def test_events_run_at_their_wall_time_with_modelled_now(clock):
     s = c.sched
     seen = []
     t0 = time.perf_counter()
-    for t in (0.02, 0.05, 0.05, 0.11, 0.2):
+    for t in (0.1, 0.25, 0.25, 0.55, 1.0):
         s.at(t, lambda t=t: seen.append((t, s.now, time.perf_counter() - t0, threading.current_thread().name)))
     c.start()
     deadline = time.monotonic() + 5
     while len(seen) < 5 and time.monotonic() < deadline:
         time.sleep(0.01)
-    assert [x[0] for x in seen] == [0.02, 0.05, 0.05, 0.11, 0.2]
+    assert [x[0] for x in seen] == [0.1, 0.25, 0.25, 0.55, 1.0]
     for t, now, wall, thread in seen:
         assert now == t                         # sched.now is the modelled time, exactly
         assert t - 0.002 <= wall <= t + SLACK   # and it ran when the wall clock got there
@@ -112,14 +113,14 @@ def test_an_event_that_raises_does_not_stop_the_clock(clock):
 def test_pause_freezes_simulation_time(clock):
     c = clock()
     fired = []
-    c.sched.at(0.15, lambda: fired.append(time.perf_counter()))
+    c.sched.at(0.75, lambda: fired.append(time.perf_counter()))
     c.start()
     time.sleep(0.05)
     c.pause()
     t_paused = c.now()
-    time.sleep(0.2)
+    time.sleep(1.0)
     assert c.paused and c.now() == t_paused
-    assert not fired                          # due at 0.15 sim, but sim time stands at ~0.05
+    assert not fired                          # due at 0.75 sim, but sim time stands at ~0.05
     ran = c.submit(lambda: c.sched.now).result(2)
     assert ran == pytest.approx(t_paused, abs=1e-9)     # the inbox still runs, at the frozen time
     t_resume = time.perf_counter()
@@ -128,30 +129,30 @@ def test_pause_freezes_simulation_time(clock):
     while not fired and time.monotonic() < deadline:
         time.sleep(0.005)
     assert fired
-    assert fired[0] - t_resume == pytest.approx(0.15 - t_paused, abs=SLACK)
+    assert fired[0] - t_resume == pytest.approx(0.75 - t_paused, abs=SLACK)
 
 
 def test_speed_factor(clock):
     c = clock(speed=4.0)
     fired = threading.Event()
-    c.sched.at(0.4, fired.set)
+    c.sched.at(2.0, fired.set)
     t0 = time.perf_counter()
     c.start()
-    assert fired.wait(2)
-    assert time.perf_counter() - t0 == pytest.approx(0.1, abs=SLACK)
+    assert fired.wait(5)
+    assert time.perf_counter() - t0 == pytest.approx(0.5, abs=SLACK)
     assert c.wall_epoch() == pytest.approx(time.time() - c.now() / 4.0, abs=0.01)
 
 
 def test_until_ends_the_run_there(clock):
-    c = clock(until=0.1)
+    c = clock(until=0.5)
     late = []
-    c.sched.at(0.05, lambda: None)
-    c.sched.at(0.5, late.append, 1)
+    c.sched.at(0.25, lambda: None)
+    c.sched.at(2.5, late.append, 1)
     t0 = time.perf_counter()
     c.start()
-    assert c.done.wait(2)
-    assert time.perf_counter() - t0 == pytest.approx(0.1, abs=SLACK)
-    assert c.sched.now == 0.1 and not late
+    assert c.done.wait(5)
+    assert time.perf_counter() - t0 == pytest.approx(0.5, abs=SLACK)
+    assert c.sched.now == 0.5 and not late
 
 
 def test_stop_wakes_an_idle_clock_at_once(clock):
@@ -179,7 +180,7 @@ def test_bad_speed():
 def test_a_network_in_realtime_delivers_after_the_modelled_delay(clock):
     """Frames handed over from another thread arrive at their modelled time, in wall time too."""
     sc = scene([vehicle("a", (0, 0, 0), device("a-m", 1, bitrate=10_000)),
-                vehicle("b", (150, 0, 0), device("b-m", 2, bitrate=10_000))], duration=5)
+                vehicle("b", (900, 0, 0), device("b-m", 2, bitrate=10_000))], duration=8)
     net = Network(sc, flows=False)
     got = []
     net.modems["b-m"].on_receive.append(lambda m, f, t, d: got.append((f.t_enq, t, time.perf_counter())))
@@ -190,11 +191,11 @@ def test_a_network_in_realtime_delivers_after_the_modelled_delay(clock):
         sent.append(time.perf_counter())
         c.call_soon(lambda: net.modems["a-m"].send(2, 40, data=b"x" * 40))
         time.sleep(0.15)
-    deadline = time.monotonic() + 3
+    deadline = time.monotonic() + 5
     while len(got) < 3 and time.monotonic() < deadline:
         time.sleep(0.01)
     assert len(got) == 3
-    modelled = 150 / 1500 + 40 * 8 / 10_000               # propagation + transmission
+    modelled = 900 / 1500 + 40 * 8 / 10_000               # propagation + transmission: 0.632 s
     for (t_enq, t_rx, wall), w_sent in zip(got, sent, strict=True):
         assert t_rx - t_enq == pytest.approx(modelled, abs=1e-9)
         assert wall - w_sent == pytest.approx(modelled, abs=SLACK)
