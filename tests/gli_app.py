@@ -55,8 +55,8 @@ class App:
             return {"kind": m.wait_kind(timeout=c.get("timeout", 5.0))}
         if op == "kind":
             m = self.modem(c["id"])
-            want = c.get("want")
-            if want is not None:
+            if "want" in c:             # wait for that kind (None: the modem gone), up to the timeout
+                want = c["want"]
                 deadline = time.monotonic() + c.get("timeout", 5.0)
                 while m.kind != want and time.monotonic() < deadline:
                     time.sleep(0.01)

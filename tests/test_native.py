@@ -24,7 +24,7 @@ needs_build = pytest.mark.skipif(not BUILT, reason=f"no compiled build here ({_n
 PROBE = """
 import json, sys
 from uwsimnet_zenoh import _native
-import uwsimnet_zenoh.engine.network, uwsimnet_zenoh.mac.nomac
+import uwsimnet_zenoh.engine.network, uwsimnet_zenoh.mac.nomac, uwsimnet_zenoh.analysis.fold
 from uwsimnet_zenoh.kernel import frame
 print(json.dumps({"loaded": _native.loaded(), "status": _native.status(), "edited": hasattr(frame, "EDITED"),
                   "frame_file": frame.__file__}))
@@ -55,6 +55,7 @@ def test_the_list_names_modules_that_exist():
 
 @needs_build
 def test_this_process_runs_the_compiled_engine():
+    import uwsimnet_zenoh.analysis.fold  # noqa: F401
     import uwsimnet_zenoh.engine.network  # noqa: F401
     import uwsimnet_zenoh.mac.nomac  # noqa: F401
 
@@ -103,12 +104,16 @@ def test_a_missing_extension_or_manifest_means_pure(tmp_path):
 
 
 RUN = """
-import sys
+import json, sys
 from pathlib import Path
 from uwsimnet_zenoh import _native
-from uwsimnet_zenoh.app.virtual import load_scene_file, run_virtual
+from uwsimnet_zenoh.analysis import report_json
+from uwsimnet_zenoh.app.virtual import load_scene_file, simulate
 sc = load_scene_file(sys.argv[1])
-run_virtual(sc, seed=int(sys.argv[2]), duration=float(sys.argv[3]), trace_path=Path(sys.argv[4]), progress=False)
+a = simulate(sc, seed=int(sys.argv[2]), duration=float(sys.argv[3]), trace_path=Path(sys.argv[4]),
+             progress=False).analysis
+print(json.dumps([report_json(a.flows), {str(k): c.to_dict() for k, c in a.channels.items()}, list(a.conservation),
+                  [list(x.__dict__.values()) for x in a.conservation.in_flight]], sort_keys=True))
 print(len(_native.loaded()))
 """
 
@@ -119,7 +124,8 @@ SCENES = [("scenes/paper/phy-layer-rf.xml", "3", "60"), ("scenes/paper/twinbot-s
 @needs_build
 @pytest.mark.parametrize("scene, seed, duration", SCENES)
 def test_compiled_and_pure_give_the_same_trace_bytes(tmp_path, scene, seed, duration):
-    outs = []
+    """... and the same online summary (the metrics' fold is compiled too)."""
+    outs, summaries = [], []
     for pure in ("1", "0"):
         out = tmp_path / f"pure{pure}.jsonl"
         env = {**os.environ, _native.PURE_ENV: pure}
@@ -127,5 +133,7 @@ def test_compiled_and_pure_give_the_same_trace_bytes(tmp_path, scene, seed, dura
                            capture_output=True, text=True, check=True, cwd=ROOT)
         assert int(r.stdout.split()[-1]) == (0 if pure == "1" else len(_native.MODULES))
         outs.append(out.read_bytes())
+        summaries.append(r.stdout.splitlines()[-2])
     assert outs[0].count(b"\n") > 100
     assert outs[0] == outs[1]
+    assert '"delivered"' in summaries[0] and summaries[0] == summaries[1]

@@ -33,16 +33,19 @@ from typing import Any
 MODULES: tuple[str, ...] = (
     "uwsimnet_zenoh.kernel.scheduler",
     "uwsimnet_zenoh.kernel.frame",
+    "uwsimnet_zenoh.trace.tracer",
     "uwsimnet_zenoh.traffic.flow",
     "uwsimnet_zenoh.phy.modem",
     "uwsimnet_zenoh.phy.channel",
     "uwsimnet_zenoh.mac.base",
     "uwsimnet_zenoh.mac.nomac",
     "uwsimnet_zenoh.engine.network",
+    "uwsimnet_zenoh.analysis.fold",
 )
-"""Compiled with mypyc when `make` can (the per-frame path: scheduler, frame, flows, modem, channel, the
-MAC base and NOMAC, the network).  Their classes become native: no monkeypatching them, and a class that
-Python code subclasses (Mac, OneFrameMac, NoMac) says `@mypyc_attr(allow_interpreted_subclasses=True)`."""
+"""Compiled with mypyc when `make` can (the per-frame path: scheduler, frame, the tracer, flows, modem,
+channel, the MAC base and NOMAC, the network, and the metrics' fold).  Their classes become native: no
+monkeypatching them, and a class that Python code subclasses (Mac, OneFrameMac, NoMac) says
+`@mypyc_attr(allow_interpreted_subclasses=True)`."""
 
 GROUP = "uwsimnet_zenoh._engine"
 """The shared library of the compiled modules: uwsimnet_zenoh/_engine__mypyc.<abi>.so."""

@@ -12,8 +12,6 @@ frames seen: time and memory are linear in the trace.  Everything here is pure: 
 from __future__ import annotations
 
 import math
-from array import array
-from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -21,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..kernel.frame import BROADCAST
+from .fold import FlowState, Fold
 from .read import (
     DEFAULT_HORIZON,
     EVENTS,
@@ -229,125 +228,22 @@ _PENDING = 4096
 """Records `Accumulator.add` takes at a time."""
 
 
-class _Frames:
-    """The state of every data frame seen, one list per field, indexed by frame id (ids in the order of the
-    frames' first events): what the conservation check and the delays need.  Lists, not arrays, while the
-    events come (an element of a list costs a tenth of a numpy scalar); the check at the end takes them as
-    arrays.  `r_*` is its receiver (unicast: at most one); `r_dev` is -2 once several receivers have had
-    an outcome, and then `multi[id]` holds them all in order, each [dccommsId, rx events, drop events,
-    last drop reason, n_tx at it]."""
-
-    COLUMNS = ("flow", "dst", "n_enq", "n_tx", "n_txdrop", "txdrop", "txdrop_at", "r_dev", "r_nrx", "r_ndrop",
-               "r_reason", "r_at", "t_enq", "t_tx")
-    __slots__ = ("index", "keys", "ch", "multi", *COLUMNS)
-
-    def __init__(self) -> None:
-        self.index: dict[tuple[str, int], int] = {}
-        self.keys: list[tuple[str, int]] = []
-        self.ch: list[Any] = []
-        self.multi: dict[int, dict[str, list[Any]]] = {}
-        self.flow: list[int] = []
-        self.dst: list[int] = []            # -1: the record had none
-        self.n_enq: list[int] = []
-        self.n_tx: list[int] = []
-        self.n_txdrop: list[int] = []
-        self.txdrop: list[str | None] = []  # reason of the last transmitter-side drop
-        self.txdrop_at: list[int] = []
-        self.r_dev: list[Any] = []          # None: no receiver yet; -2: several (multi)
-        self.r_nrx: list[int] = []
-        self.r_ndrop: list[int] = []
-        self.r_reason: list[str | None] = []
-        self.r_at: list[int] = []
-        self.t_enq: list[float | None] = []
-        self.t_tx: list[float | None] = []
-
-    @property
-    def n(self) -> int:
-        return len(self.keys)
-
-    def new(self, key: tuple[str, int], flow: int, ch: Any, dst: int) -> int:
-        i = len(self.keys)
-        self.index[key] = i
-        self.keys.append(key)
-        self.ch.append(ch)
-        self.flow.append(flow)
-        self.dst.append(dst)
-        self.n_enq.append(0)            # (written out: a loop over the lists costs 3 % of the metrics)
-        self.n_tx.append(0)
-        self.n_txdrop.append(0)
-        self.txdrop_at.append(0)
-        self.r_nrx.append(0)
-        self.r_ndrop.append(0)
-        self.r_at.append(0)
-        self.txdrop.append(None)
-        self.r_dev.append(None)
-        self.r_reason.append(None)
-        self.t_enq.append(None)
-        self.t_tx.append(None)
-        return i
-
-    def receivers(self, i: int) -> list[list[Any]]:
-        """[[dccommsId, rx events, drop events, last drop reason, n_tx at it], ...] of frame `i`."""
-        rd = self.r_dev[i]
-        if rd is None:
-            return []
-        if rd == -2:
-            return list(self.multi[i].values())
-        return [[rd, self.r_nrx[i], self.r_ndrop[i], self.r_reason[i], self.r_at[i]]]
-
-    def receiver(self, i: int, dev: str) -> list[Any] | None:
-        """The record of receiver `dev` of frame `i` if the frame has several, else None: the r_* columns
-        are its receiver's (set to `dev` if it had none)."""
-        rd = self.r_dev[i]
-        if rd is None:
-            self.r_dev[i] = dev
-            return None
-        if rd == dev:
-            return None
-        if rd != -2:        # a second receiver: all of them as records from now on
-            self.multi[i] = {rd: [rd, self.r_nrx[i], self.r_ndrop[i], self.r_reason[i], self.r_at[i]]}
-            self.r_dev[i] = -2
-        m = self.multi[i]
-        r = m.get(dev)
-        if r is None:
-            r = m[dev] = [dev, 0, 0, None, 0]
-        return r
-
-
-class _Acc:
-    __slots__ = ("m", "t_first", "t_first_enq", "t_last", "delays", "prev_delay", "jit_sum", "jit_n",
-                 "drop_events", "intended")
-
-    def __init__(self, m: FlowMetrics) -> None:
-        self.m = m
-        self.t_first: float | None = None
-        self.t_first_enq: float | None = None
-        self.t_last: float | None = None
-        self.delays = array("d")
-        self.prev_delay: float | None = None
-        self.jit_sum = 0.0
-        self.jit_n = 0
-        self.drop_events: dict[str, int] = {}
-        self.intended = 0
-
-
 def _meta_flows(meta: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
     flows = meta.get("flows") or {}
     return {k: v for k, v in flows.items() if isinstance(v, Mapping)} if isinstance(flows, Mapping) else {}
 
 
 class Accumulator:
-    """The metrics of a run, accumulated as the events come (`rows()`, O(1) per event): the one definition
-    behind `analyse()` on a trace and the online summary of `uwsimnet run` (a batch consumer of the tracer,
+    """The metrics of a run, accumulated as the events come (O(1) per event): the one definition behind
+    `analyse()` on a trace and the online summary of `uwsimnet run` (a batch consumer of the tracer,
     `on_batch`), so the two give the same numbers for the same run.
 
         acc = Accumulator(net.meta()); net.tracer.consume(acc.on_batch); net.run(); net.tracer.flush()
         a = acc.result()
 
-    Events come in batches (the tracer's, or `add()`'s of trace records) and are taken in one flat loop,
-    its state in locals and lists; the conservation check at the end is done with numpy for the frames with
-    one outcome and no violation, one by one for the others.  tests/test_online_metrics.py holds it to
-    the event-by-event definition it replaced (tests/metrics_reference.py) on every scene.
+    The per-event work is `fold.Fold` (compiled with the engine when `make` can); this class feeds it and
+    turns its state into FlowMetrics, ChannelMetrics and the Conservation.  tests/test_online_metrics.py
+    holds it to the event-by-event definition it replaced (tests/metrics_reference.py) on every scene.
     """
 
     def __init__(self, meta: Mapping[str, Any] | None = None) -> None:
@@ -355,37 +251,13 @@ class Accumulator:
         self.meta = meta
         self.devs = devs = DeviceMap(meta)
         self.mflows = mflows = _meta_flows(meta)
-        self.accs: dict[str, _Acc] = {}
-        self._flows: list[_Acc] = []        # by flow id
-        self._fid: dict[str, int] = {}
+        self._fold = fold = Fold(devs._meta_tx, devs._meta_rx, devs.header)
         for name, f in mflows.items():
-            size = f.get("size")
-            fm = FlowMetrics(name=name, src=f.get("src") if isinstance(f.get("src"), str) else None,
-                             dst=f.get("dst") if is_int(f.get("dst")) else None,
-                             payload=size if is_int(size) else None)
-            self._new_acc(name, _Acc(fm))
-        self.f = _Frames()
-        self.max_tx_seq: dict[str, int] = {}
-        self._chan_counts: dict[tuple[Any, str, str | None], int] = {}
-        self._chan_bytes: dict[Any, int] = {}
-        self._chan_ctrl: dict[Any, int] = {}
-        self.t_end = -math.inf
+            src, dst, size = f.get("src"), f.get("dst"), f.get("size")
+            fold.flow(name, src if isinstance(src, str) else None, dst if is_int(dst) else None,
+                      size if is_int(size) else None)
         self.ended: float | None = None     # an `end` record: the run's actual end (stopped early, realtime)
-        self._header = devs.header
         self._pending: list[tuple[Any, ...]] = []     # records of `add()` not yet taken
-
-    def _new_acc(self, name: str, a: _Acc) -> int:
-        i = len(self._flows)
-        self._flows.append(a)
-        self._fid[name] = i
-        self.accs[name] = a
-        return i
-
-    def _acc_id(self, name: str, tx_dev: str, dst: Any) -> int:
-        i = self._fid.get(name)
-        if i is None:
-            i = self._new_acc(name, _Acc(FlowMetrics(name=name, src=tx_dev, dst=dst if is_int(dst) else None)))
-        return i
 
     # -- input --
     def add(self, rec: Mapping[str, Any]) -> None:
@@ -409,204 +281,44 @@ class Accumulator:
         pending = self._pending
         if pending:
             self._pending = []
-            self.rows(pending, [r[0] for r in pending])
+            self._fold.rows(pending, [r[0] for r in pending])
 
     def on_batch(self, b: Any) -> None:
         """A batch consumer (trace.events.Tracer.consume): the events of a `Batch`, their records' times
         shared with the trace writers."""
         self._drain()
-        self.rows(b.rows, b.t9)
+        self._fold.rows(b.rows, b.t9)
 
     def on_event(self, t: float, ev: str, ch: int, dev: str, frame: Any, reason: str | None,
                  fifo: int | None, dist: float | None, implicit: bool = False) -> None:
         """An event listener (trace.events.Tracer.listen): the event as its trace record would say it (one
         row of `rows()`; `on_batch` is the fast way)."""
-        self._drain()
         self.rows([(t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind, reason,
                     fifo, dist, implicit)], [round(t, 9)])
 
     def event(self, t: float, ev: str, ch: Any, dev: str, src: int, dst: int | None, seq: int, size: int,
               flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool = False) -> None:
         """One frame event with its record's fields (`dst` None: the record had none)."""
-        self._drain()
         self.rows([(t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, None, True if has_dist else None,
                     implicit)], [t])
 
     def rows(self, rows: Iterable[tuple[Any, ...]], t9: Iterable[float]) -> None:
         """The definition: frame events in order, each a row (t, ev, ch, dev, src, dst, seq, size, flow, kind,
         reason, fifo, dist, implicit) (trace.events.Row; `dist` only tested for None, `fifo` unused) with
-        `t9` its record's time.  Both the online summary (`on_batch`) and a trace (`add`, `analyse`) come
-        here.  The hot path of a run's summary: one flat loop, the state in locals and lists."""
-        F = self.f
-        index = F.index
-        f_flow, f_dst, f_nenq, f_ntx, f_ttx, f_tenq = F.flow, F.dst, F.n_enq, F.n_tx, F.t_tx, F.t_enq
-        f_rdev, f_rnrx = F.r_dev, F.r_nrx
-        flows = self._flows
-        fid = self._fid
-        devs = self.devs
-        dtx = devs.tx
-        cnt = self._chan_counts
-        cbytes = self._chan_bytes
-        header = self._header
-        max_tx_seq = self.max_tx_seq
-        t_end = self.t_end
-        try:
-            for (_, ev, ch, dev, src, dst, seq, size, flow, kind, reason, _fifo, dist, implicit), t in zip(
-                    rows, t9, strict=True):
-                if t > t_end:
-                    t_end = t
-                if implicit and ev == "rx":
-                    continue        # handed to a modem that was not the addressee (no MAC): not a delivery
-                ck = (ch, ev, reason)
-                cnt[ck] = cnt.get(ck, 0) + 1
-                if ev == "rx":
-                    at_tx = False
-                    tx_dev = dtx.get((ch, src)) or devs.tx_dev(ch, src)
-                elif ev == "drop":
-                    known = dtx.get((ch, src))
-                    if known is not None:
-                        at_tx = dev == known
-                    else:
-                        at_tx = reason in TX_REASONS or (reason not in RX_REASONS and dist is None)
-                    if at_tx:
-                        if known is None:
-                            dtx[(ch, src)] = dev
-                        tx_dev = dev
-                    else:
-                        tx_dev = known if known is not None else devs.tx_dev(ch, src)
-                else:
-                    at_tx = True
-                    tx_dev = dev
-                    key = (ch, src)
-                    if key not in dtx:
-                        dtx[key] = dev
-                    if ev == "tx":
-                        cbytes[ch] = cbytes.get(ch, 0) + size
-                if kind != "data":
-                    if ev == "tx":      # control frames only count as bytes on air of the flow they serve
-                        self._chan_ctrl[ch] = self._chan_ctrl.get(ch, 0) + 1
-                        m = flows[self._acc_id(self._ctrl_flow(flow, seq, src, dst, ch, tx_dev), tx_dev, None)].m
-                        m.ctrl_sent += 1
-                        m.ctrl_bytes_on_air += size
-                    continue
-
-                fkey = (tx_dev, seq)
-                i = index.get(fkey)
-                if i is None:
-                    fdst = -1 if dst is None else dst
-                    name = flow if flow is not None else tx_dev
-                    fl = fid.get(name)
-                    if fl is None:
-                        fl = self._acc_id(name, tx_dev, fdst)
-                    i = F.new(fkey, fl, ch, fdst)
-                else:
-                    fl = f_flow[i]
-                a = flows[fl]
-                m = a.m
-                if a.t_first is None:
-                    a.t_first = t
-                a.t_last = t
-                if m.src is None:
-                    m.src = tx_dev
-                if m.dst is None:
-                    fdst = f_dst[i]
-                    if is_int(fdst) and fdst >= 0:
-                        m.dst = fdst
-
-                if ev == "enq":
-                    f_nenq[i] += 1
-                    if f_tenq[i] is None:
-                        f_tenq[i] = t
-                    if a.t_first_enq is None:
-                        a.t_first_enq = t
-                    m.enqueued += 1
-                    p = m.payload
-                    m.payload_offered += p if p is not None else max(0, size - header.get(tx_dev, 0))
-                elif ev == "tx":
-                    n_tx = f_ntx[i] = f_ntx[i] + 1
-                    f_ttx[i] = t
-                    if n_tx == 1:
-                        m.unique_sent += 1
-                        if seq > max_tx_seq.get(tx_dev, -1):
-                            max_tx_seq[tx_dev] = seq
-                    m.sent += 1
-                    m.data_bytes_on_air += size
-                elif ev == "rx":
-                    rd = f_rdev[i]
-                    if rd == dev:
-                        f_rnrx[i] += 1
-                    elif rd is None:
-                        f_rdev[i] = dev
-                        f_rnrx[i] += 1
-                    else:
-                        F.receiver(i, dev)[1] += 1  # type: ignore[index]
-                    m.delivered += 1
-                    p = m.payload
-                    m.payload_delivered += p if p is not None else max(0, size - header.get(tx_dev, 0))
-                    t_enq = f_tenq[i]
-                    if t_enq is not None:
-                        d = t - t_enq
-                        a.delays.append(d)
-                        prev = a.prev_delay
-                        if prev is not None:
-                            a.jit_sum += abs(d - prev)
-                            a.jit_n += 1
-                        a.prev_delay = d
-                else:   # drop
-                    de = a.drop_events
-                    de[reason] = de.get(reason, 0) + 1
-                    if at_tx:
-                        F.n_txdrop[i] += 1
-                        F.txdrop[i] = reason
-                        F.txdrop_at[i] = f_ntx[i]
-                    else:
-                        rd = f_rdev[i]
-                        if rd == dev or rd is None:
-                            f_rdev[i] = dev
-                            F.r_ndrop[i] += 1
-                            F.r_reason[i] = reason
-                            F.r_at[i] = f_ntx[i]
-                        else:
-                            r = F.receiver(i, dev)
-                            r[2] += 1           # type: ignore[index]
-                            r[3] = reason       # type: ignore[index]
-                            r[4] = f_ntx[i]     # type: ignore[index]
-        finally:
-            self.t_end = t_end
-
-    def _ctrl_flow(self, flow: str | None, seq: int, src: int, dst: int | None, ch: Any, tx_dev: str) -> str:
-        """The flow a control frame serves: its `flow`, else the data frame it is about (an RTS names the
-        data frame's (src, seq, dst); a CTS/ACK answers with src and dst swapped), else its transmitter."""
-        if flow is not None:
-            return flow
-        F = self.f
-        i = F.index.get((tx_dev, seq))
-        if i is not None and F.dst[i] in (dst, BROADCAST):
-            return self._flows[F.flow[i]].m.name
-        if is_int(dst) and dst != BROADCAST:
-            i = F.index.get((self.devs.tx_dev(ch, dst), seq))
-            if i is not None and F.dst[i] in (src, BROADCAST):
-                return self._flows[F.flow[i]].m.name
-        return tx_dev
+        `t9` its record's time (a `kind` that is not a string: not "data")."""
+        self._drain()
+        rows = list(rows)
+        for k, r in enumerate(rows):
+            if not isinstance(r[9], str):
+                rows[k] = (*r[:9], "", *r[10:])
+        self._fold.rows(rows, list(t9))
 
     # -- the end --
     def _channels(self) -> dict[Any, ChannelMetrics]:
-        out: dict[Any, ChannelMetrics] = {}
-        for (ch, ev, reason), n in self._chan_counts.items():
-            c = out.get(ch)
-            if c is None:
-                c = out[ch] = ChannelMetrics(ch, bytes_on_air=self._chan_bytes.get(ch, 0),
-                                             ctrl_sent=self._chan_ctrl.get(ch, 0))
-            if ev == "tx":
-                c.sent += n
-            elif ev == "rx":
-                c.delivered += n
-            elif ev == "drop":
-                c.drop_events[reason] = c.drop_events.get(reason, 0) + n  # type: ignore[index]
-            else:
-                c.enqueued += n
-        for c in out.values():
-            c.drop_events = dict(sorted(c.drop_events.items()))
+        out = {ch: ChannelMetrics(ch, enqueued=c.enqueued, sent=c.sent, ctrl_sent=c.ctrl_sent,
+                                  bytes_on_air=c.bytes_on_air, delivered=c.delivered,
+                                  drop_events=dict(sorted(c.drop_events.items())))  # type: ignore[arg-type]
+               for ch, c in self._fold.channels.items()}
         return {ch: out[ch] for ch in sorted(out, key=lambda c: (isinstance(c, str), c))}
 
     def result(self, *, horizon: float = DEFAULT_HORIZON, end: float | None = None, limit: int = 1000) -> Analysis:
@@ -614,146 +326,22 @@ class Accumulator:
         the frames: call it once, at the end."""
         self._drain()
         meta = self.meta
+        fold = self._fold
+        t_end = -math.inf if fold.t_end is None else fold.t_end
         if end is None and self.ended is not None:
-            end = max(self.ended, self.t_end)
+            end = max(self.ended, t_end)
         if end is None:
             dur = meta.get("duration")
-            end = max(dur if is_num(dur) else -math.inf, self.t_end)
+            end = max(dur if is_num(dur) else -math.inf, t_end)
             if not math.isfinite(end):
                 end = 0.0
-        cons = self._settle(end, horizon, limit)
+        violations, total, flying = fold.settle(end, horizon, limit)
+        cons = Conservation(violations, [InFlight(*x) for x in flying], frames=len(fold.frames), end=end,
+                            total=total)
         duration = meta.get("duration") if self.ended is None else self.ended
-        flows = {name: _finish(a, self.mflows.get(name), duration if is_num(duration) else None)
-                 for name, a in self.accs.items()}
+        flows = {s.name: _finish(s, self.mflows.get(s.name), duration if is_num(duration) else None)
+                 for s in fold.flows}
         return Analysis(meta=meta, flows=flows, conservation=cons, channels=self._channels())
-
-    def _settle(self, end: float, horizon: float, limit: int) -> Conservation:
-        """Final outcomes per frame (into the flows' drops) and the conservation check.  The frames with one
-        receiver (or none) that break no rule and have an outcome are counted with numpy; the others
-        (several receivers, a violation, in flight) one by one, in order."""
-        F = self.f
-        n = F.n
-        flows = self._flows
-        violations: list[str] = []
-        total = 0
-        in_flight: list[InFlight] = []
-        if not n:
-            return Conservation(violations, in_flight, frames=0, end=end, total=0)
-        i64 = np.int64
-        dst_l = F.dst
-        dst = np.fromiter((d if -2**62 < d < 2**62 else -1 for d in dst_l), i64, n)   # (only compared to 255)
-        n_enq = np.array(F.n_enq, i64)
-        n_tx = np.array(F.n_tx, i64)
-        n_txdrop = np.array(F.n_txdrop, i64)
-        txdrop_at = np.array(F.txdrop_at, i64)
-        r_nrx = np.array(F.r_nrx, i64)
-        r_ndrop = np.array(F.r_ndrop, i64)
-        r_at = np.array(F.r_at, i64)
-        r_dev = F.r_dev
-        several = np.fromiter((x is not None and not isinstance(x, str) for x in r_dev), bool, n)
-        none = np.fromiter((x is None for x in r_dev), bool, n)
-        single = ~several & ~none
-        odd = several | (n_enq != 1) | (n_txdrop > 1) | ((n_txdrop > 0) & (txdrop_at < n_tx))
-        odd |= single & ((r_nrx > 1) | (r_nrx + r_ndrop > n_tx))
-        odd |= none & (n_txdrop == 0)            # no outcome: in flight, or a violation
-        uni = np.flatnonzero(single & (dst != BROADCAST) & ~odd)
-        if uni.size:                             # an outcome at a modem that is not the addressee
-            cache: dict[tuple[Any, Any], str | None] = {}
-            chs = F.ch
-            rx_dev = self.devs.rx_dev
-            for i in uni.tolist():
-                key = (chs[i], dst_l[i])
-                if key in cache:
-                    who = cache[key]
-                else:
-                    who = cache[key] = rx_dev(*key)
-                if who is not None and r_dev[i] != who:
-                    odd[i] = True
-        ok = ~odd
-        tx_final = (n_txdrop > 0) & (txdrop_at == n_tx)
-        rx_any = single & (r_nrx > 0)
-        f_flow = F.flow
-        for sel, why in ((ok & single & (r_nrx == 0) & (r_ndrop > 0) & (r_at == n_tx) & ~tx_final, F.r_reason),
-                         (ok & (n_txdrop > 0) & ~rx_any, F.txdrop)):
-            for (f, r), c in Counter((f_flow[i], why[i]) for i in np.flatnonzero(sel).tolist()).items():
-                drops = flows[f].m.drops
-                drops[r] = drops.get(r, 0) + c
-        sent = ok & (n_tx > 0)
-        fl = np.array(f_flow, i64)
-        intended = np.bincount(fl[sent], weights=np.where(dst[sent] == BROADCAST, single[sent], 1),
-                               minlength=len(flows))
-        for f in np.flatnonzero(intended).tolist():
-            flows[f].intended += int(intended[f])
-
-        max_tx_seq = self.max_tx_seq
-        for i in np.flatnonzero(odd).tolist():
-            tx_dev, seq = F.keys[i]
-            a = flows[f_flow[i]]
-            m = a.m
-            label = f"{tx_dev} seq {seq} (flow {m.name}): "
-            msgs: list[str] = []
-            drops = m.drops
-            rcv = F.receivers(i)
-            nt = F.n_tx[i]
-            ntd = F.n_txdrop[i]
-            tda = F.txdrop_at[i]
-            fdst = dst_l[i]
-            any_rx = False
-            final = ntd > 0 and tda == nt
-            for rdev, n_rx, n_drop, last_reason, last_at in rcv:
-                if n_rx:
-                    any_rx = True
-                    if n_rx > 1:
-                        msgs.append(f"delivered {n_rx} times at {rdev}")
-                elif n_drop and last_at == nt and not final:
-                    drops[last_reason] = drops.get(last_reason, 0) + 1
-                if n_rx + n_drop > nt:
-                    msgs.append(f"{n_rx + n_drop} outcomes at {rdev} for {nt} transmission(s)")
-            txr = F.txdrop[i]
-            if ntd and not any_rx:
-                drops[txr] = drops.get(txr, 0) + 1    # type: ignore[index]
-            if nt:
-                a.intended += len(rcv) if fdst == BROADCAST else 1
-            ne = F.n_enq[i]
-            if ne == 0:
-                msgs.append("no enq record")
-            elif ne > 1:
-                msgs.append(f"enqueued {ne} times")
-            if ntd > 1:
-                msgs.append(f"dropped {ntd} times at the transmitter")
-            if ntd and tda < nt:
-                msgs.append(f"transmitted after its transmitter-side drop ({txr})")
-            if fdst != BROADCAST and rcv:
-                if len(rcv) > 1:
-                    names = ", ".join(sorted(r[0] for r in rcv))
-                    msgs.append(f"outcomes at {len(rcv)} receivers ({names}) of a unicast frame")
-                else:
-                    addressee = self.devs.rx_dev(F.ch[i], fdst)
-                    rdev = rcv[0][0]
-                    if addressee is not None and rdev != addressee:
-                        msgs.append(f"outcome at {rdev}, not at its addressee {addressee}")
-            if not rcv and not ntd:
-                t_enq = F.t_enq[i]
-                if nt == 0:
-                    if max_tx_seq.get(tx_dev, -1) > seq:
-                        msgs.append(f"never transmitted nor dropped, although later frames of {tx_dev} were sent")
-                    else:
-                        in_flight.append(InFlight(tx_dev, seq, m.name, "queued", t_enq, None))
-                        m.in_flight += 1
-                else:
-                    t_tx = F.t_tx[i]
-                    if t_tx is not None and t_tx >= end - horizon:
-                        in_flight.append(InFlight(tx_dev, seq, m.name, "on air", t_enq, t_tx))
-                        m.in_flight += 1
-                    else:
-                        msgs.append(f"transmitted at {t_tx:g} s, no outcome by the end ({end:g} s)")
-            for msg in msgs:
-                total += 1
-                if len(violations) < limit:
-                    violations.append(label + msg)
-        if total > len(violations):
-            violations.append(f"... {total - len(violations)} more violations")
-        return Conservation(violations, in_flight, frames=n, end=end, total=total)
 
 
 def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float = DEFAULT_HORIZON,
@@ -784,14 +372,17 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
     return acc.result(horizon=horizon, end=end, limit=limit)
 
 
-def _finish(a: _Acc, mf: Mapping[str, Any] | None, duration: float | None) -> FlowMetrics:
-    m = a.m
-    m.drops = dict(sorted(m.drops.items()))
-    m.superseded = {r: n - m.drops.get(r, 0) for r, n in sorted(a.drop_events.items())
-                    if n - m.drops.get(r, 0) > 0}
+def _finish(s: FlowState, mf: Mapping[str, Any] | None, duration: float | None) -> FlowMetrics:
+    m = FlowMetrics(name=s.name, src=s.src, dst=s.dst, payload=s.payload, enqueued=s.enqueued, sent=s.sent,
+                    unique_sent=s.unique_sent, delivered=s.delivered, payload_delivered=s.payload_delivered,
+                    payload_offered=s.payload_offered, data_bytes_on_air=s.data_bytes_on_air,
+                    ctrl_sent=s.ctrl_sent, ctrl_bytes_on_air=s.ctrl_bytes_on_air, in_flight=s.in_flight)
+    m.drops = dict(sorted(s.drops.items()))  # type: ignore[arg-type]
+    m.superseded = {r: n - m.drops.get(r, 0) for r, n in sorted(s.drop_events.items())  # type: ignore[arg-type]
+                    if n - m.drops.get(r, 0) > 0}  # type: ignore[arg-type]
     # active window
-    w0: float | None = None
-    w1: float | None = None
+    w0: Any = None
+    w1: Any = None
     if mf is not None:
         start = mf.get("start")
         w0 = float(start) if is_num(start) else 0.0
@@ -802,8 +393,8 @@ def _finish(a: _Acc, mf: Mapping[str, Any] | None, duration: float | None) -> Fl
         else:
             w1 = stop if stop is not None else duration
     if w1 is None:
-        w0 = a.t_first_enq if a.t_first_enq is not None else a.t_first
-        w1 = a.t_last
+        w0 = s.t_first_enq if s.t_first_enq is not None else s.t_first
+        w1 = s.t_last
     if w0 is not None and w1 is not None:
         m.window = (w0, w1)
         span = w1 - w0
@@ -812,12 +403,12 @@ def _finish(a: _Acc, mf: Mapping[str, Any] | None, duration: float | None) -> Fl
             m.offered = m.payload_offered / span
     on_air = m.bytes_on_air
     m.efficiency = m.payload_delivered / on_air if on_air > 0 else None
-    m.delivery_ratio = m.delivered / a.intended if a.intended > 0 else None
-    if a.delays:
-        d = np.frombuffer(a.delays, dtype=np.float64)
+    m.delivery_ratio = m.delivered / s.intended if s.intended > 0 else None
+    if s.delays:
+        d = np.array(s.delays, dtype=np.float64)
         m.delay_mean = float(d.mean())
         m.delay_median, m.delay_p95 = median_p95(d)
-    m.jitter = a.jit_sum / a.jit_n if a.jit_n else None
+    m.jitter = s.jit_sum / s.jit_n if s.jit_n else None
     return m
 
 

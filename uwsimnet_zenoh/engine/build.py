@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from ..kernel.scheduler import Scheduler
     from ..phy.channel import Channel as PhyChannel
     from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device, MacSpec
-    from ..trace.events import Tracer
+    from ..trace.tracer import Tracer
 
 __all__ = ["DEFAULT_CARRIER_KHZ", "DEFAULT_POWER_W", "BuildError", "FixedBerLink", "build_error_model", "build_modem",
            "channel_options", "channel_params", "default_bitrate", "make_mac", "modem_error_model",

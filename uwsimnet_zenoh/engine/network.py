@@ -17,7 +17,7 @@ from ..mobility.trajectory import PoseTable, Trajectory
 from ..phy.channel import Channel
 from ..phy.modem import Modem
 from ..scene.model import Device, Scene, Vehicle
-from ..trace.events import Tracer
+from ..trace.tracer import Tracer
 from ..traffic.flow import FlowSource
 from .build import build_modem, channel_options
 

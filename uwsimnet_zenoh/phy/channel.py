@@ -26,7 +26,7 @@ from .interference import classify, min_sinr_db
 if TYPE_CHECKING:
     from ..kernel.scheduler import Scheduler
     from ..mobility.trajectory import PoseTable
-    from ..trace.events import Tracer
+    from ..trace.tracer import Tracer
     from .modem import Modem, SinrLossModel
 
 INF = float("inf")

@@ -20,7 +20,7 @@ from .framing import Framing, builder
 
 if TYPE_CHECKING:
     from ..kernel.scheduler import Event, Scheduler
-    from ..trace.events import Tracer
+    from ..trace.tracer import Tracer
     from .channel import Channel
 
 RxCallback = Callable[["Modem", Frame, float, float], None]

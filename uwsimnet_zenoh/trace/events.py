@@ -1,22 +1,7 @@
-"""Trace events and their sinks.
-
-Every frame's life is told as `enq`, `tx`, `rx` and `drop` records (docs/trace-format.md).  The core
-emits through one `Tracer`, which has three kinds of listeners:
-
-- *batch consumers* (`Tracer.consume`) get the events in batches (`Batch`: one row tuple per event, its
-  time rounded once for all of them), in order, at most `Tracer.batch` events late: the online metrics
-  (`analysis.Accumulator.on_batch`), the JSONL writer (`JsonlSink.write_batch`) and the columnar writer
-  (`ArrowSink.write_batch`).  The tracer appends each event once to the shared batch, a consumer does its
-  work per batch (vectorised where it can), so a run pays one append per event for all of them.  Whoever
-  runs the network calls `Tracer.flush()` when the run ends (app/virtual.py does, on an interrupt and an
-  error too);
-- *event listeners* (`Tracer.listen`) are called at once with the event's fields, `fn(t, ev, ch, dev,
-  frame, reason, fifo, dist, implicit)`, and build nothing;
-- *record sinks* (`Tracer.add`) get the event at once as a dict (the documented record); the dict is
-  built only when at least one record sink listens (the realtime trace, `netTracingScript` classes).
-
-With none, an untraced run pays for a counter increment and nothing else.  Sinks are handed open
-files or callables: the core never opens anything itself (ArrowSink opens the path it is given).
+"""The trace's sinks: the JSONL writer, the columnar writer and the user's tracing class, fed by the tracer
+(trace/tracer.py: `Tracer`, `Batch`, `record`, re-exported here).  Every frame's life is told as `enq`,
+`tx`, `rx` and `drop` records (docs/trace-format.md).  Sinks are handed open files or callables: the core
+never opens anything itself (ArrowSink opens the path it is given).
 """
 
 from __future__ import annotations
@@ -26,188 +11,21 @@ import io
 import json
 import logging
 import math
-from collections import Counter
-from collections.abc import Callable, Sequence
-from itertools import starmap
-from operator import itemgetter
 from typing import IO, Any
 
 import msgspec
-import numpy as np
 
 from ..kernel.frame import Frame
+from .tracer import ROW_FIELDS, Batch, BatchConsumer, EventListener, Record, Row, Tracer, record, rounded
+from .tracer import lines as make_lines
 
-Record = dict[str, Any]
-EventListener = Callable[[float, str, int, str, Frame, "str | None", "int | None", "float | None", bool], None]
+__all__ = ["ROW_FIELDS", "ArrowSink", "Batch", "BatchConsumer", "CallbackSink", "EventListener", "JsonlSink",
+           "Record", "Row", "Tracer", "finite", "load_tracing_class", "record", "rounded"]
+
 _EVENTS = ("enq", "tx", "rx", "drop")
 log = logging.getLogger("uwsimnet.trace")
 
 
-Row = tuple[float, str, int, str, int, int, int, int, "str | None", str, "str | None", "int | None",
-            "float | None", bool]
-"""One event of a batch: (t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, fifo, dist, implicit),
-the frame's fields read when the event is emitted; `t` and `dist` as the engine gave them (not rounded)."""
-
-ROW_FIELDS = ("t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind", "reason", "fifo", "dist",
-              "implicit")
-
-
-def rounded(xs: Sequence[float], ndigits: int) -> list[float]:
-    """`[round(x, ndigits) for x in xs]` (a correctly rounded decimal), exactly, for a whole column at once.
-
-    `round(x, 9)` is the double nearest to k * 10**-9 with k the integer nearest to the exact x * 10**9
-    (ties to even).  Here k is `rint(x * 1e9)` and the double `k / 1e9` (IEEE division: correctly rounded,
-    k < 2**53 exact); the product x * 1e9 is within half an ulp of the exact one, so k is right unless
-    that product is within an ulp or so of a half-integer (or too large, or not finite): those few
-    values are rounded by Python's `round` itself."""
-    if not xs:
-        return []
-    a = np.asarray(xs, dtype=np.float64)
-    scale = 10.0 ** ndigits
-    with np.errstate(invalid="ignore", over="ignore"):
-        p = a * scale
-        k = np.rint(p)
-        frac = p - np.floor(p)
-        unsure = ~(np.abs(frac - 0.5) > 4.0 * np.spacing(np.abs(p))) | ~(np.abs(p) < 2.0 ** 52)
-    out = (k / scale).tolist()
-    for i in np.flatnonzero(unsure).tolist():
-        out[i] = round(float(xs[i]), ndigits)
-    if set(map(type, xs)) != {float}:      # an int stays an int (round(3, 9) is 3), as round() does
-        for i, x in enumerate(xs):
-            if type(x) is not float:
-                out[i] = round(x, ndigits)
-    return out
-
-
-_T = itemgetter(0)
-
-
-class Batch:
-    """Events of a run in emission order (`rows`, see `Row`), with the columns consumers share computed
-    once: `t9` (the times rounded to the ns, as the records say them) and `column(i)`."""
-
-    __slots__ = ("rows", "_t9", "_cols")
-
-    def __init__(self, rows: list[Row], t9: list[float] | None = None) -> None:
-        self.rows = rows
-        self._t9 = t9
-        self._cols: list[tuple[Any, ...]] | None = None
-
-    def __len__(self) -> int:
-        return len(self.rows)
-
-    def columns(self) -> list[tuple[Any, ...]]:
-        """The rows as 14 columns (ROW_FIELDS order)."""
-        if self._cols is None:
-            self._cols = list(zip(*self.rows, strict=True)) if self.rows else [() for _ in ROW_FIELDS]
-        return self._cols
-
-    @property
-    def t9(self) -> list[float]:
-        """`round(t, 9)` of every row: the time of its record."""
-        if self._t9 is None:
-            ts = self._cols[0] if self._cols is not None else list(map(_T, self.rows))
-            self._t9 = rounded(ts, 9)
-        return self._t9
-
-
-BatchConsumer = Callable[[Batch], None]
-_EV_REASON = itemgetter(1, 10)
-
-
-class Tracer:
-    BATCH = 4096
-    """Events per batch handed to the batch consumers."""
-
-    def __init__(self, batch: int = BATCH) -> None:
-        self.sinks: list[Callable[[Record], None]] = []
-        self.listeners: list[EventListener] = []
-        self.consumers: list[BatchConsumer] = []
-        self.batch = batch
-        self._rows: list[Row] | None = None     # None: no batch consumer, each event counted at once
-        self._rows_only = True                  # no event listener nor record sink
-        self._counts: Counter[tuple[str, str | None]] = Counter()
-
-    def add(self, sink: Callable[[Record], None]) -> None:
-        """A record sink: called with each event as a dict (docs/trace-format.md), at once."""
-        self.sinks.append(sink)
-        self._rows_only = False
-
-    def listen(self, fn: EventListener) -> None:
-        """An event listener: called at once with (t, ev, ch, dev, frame, reason, fifo, dist, implicit);
-        nothing is built."""
-        self.listeners.append(fn)
-        self._rows_only = False
-
-    def consume(self, fn: BatchConsumer) -> None:
-        """A batch consumer: called with each `Batch` of events, in order, when `batch` events are
-        pending and at `flush()`."""
-        self.consumers.append(fn)
-        if self._rows is None:
-            self._rows = []
-
-    def emit(self, t: float, ev: str, ch: int, dev: str, frame: Frame, reason: str | None = None,
-             fifo: int | None = None, dist: float | None = None, implicit: bool = False) -> None:
-        rows = self._rows
-        if rows is None:
-            self._counts[ev, reason] += 1
-        else:
-            rows.append((t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
-                         reason, fifo, dist, implicit))
-            if len(rows) >= self.batch:
-                self.flush()
-            if self._rows_only:
-                return
-        for fn in self.listeners:
-            fn(t, ev, ch, dev, frame, reason, fifo, dist, implicit)
-        if not self.sinks:
-            return
-        rec = record(t, ev, ch, dev, frame, reason, fifo, dist, implicit)
-        for sink in self.sinks:
-            sink(rec)
-
-    def flush(self) -> None:
-        """Hand the pending events to the batch consumers (at the end of a run; at any time)."""
-        rows = self._rows
-        if not rows:
-            return
-        self._rows = []
-        self._counts.update(map(_EV_REASON, rows))
-        b = Batch(rows)
-        for fn in self.consumers:
-            fn(b)
-
-    @property
-    def counts(self) -> Counter[tuple[str, str | None]]:
-        """Events so far by (ev, reason)."""
-        self.flush()
-        return self._counts
-
-    def count(self, ev: str, reason: str | None = None) -> int:
-        counts = self.counts
-        if reason is None and ev == "drop":
-            return sum(n for (e, _), n in counts.items() if e == "drop")
-        return counts[ev, reason]
-
-
-def record(t: float, ev: str, ch: int, dev: str, frame: Frame, reason: str | None = None,
-           fifo: int | None = None, dist: float | None = None, implicit: bool = False) -> Record:
-    """The documented trace record of one event (key order is part of the format)."""
-    rec: Record = {"t": round(t, 9), "ev": ev, "ch": ch, "dev": dev, "src": frame.src, "dst": frame.dst,
-                   "seq": frame.seq, "size": frame.size, "flow": frame.flow, "kind": frame.kind}
-    if reason is not None:
-        rec["reason"] = reason
-    if fifo is not None:
-        rec["fifo"] = fifo
-    if dist is not None:
-        rec["dist"] = round(float(dist), 3) if math.isfinite(dist) else None   # JSON has no inf/NaN
-    if implicit:
-        rec["implicit"] = True      # rx of a frame addressed to another modem (no MAC: implicit broadcast)
-    return rec
-
-
-_DIST = itemgetter(12)
-_IMPLICIT = itemgetter(13)
 
 
 def _row_record(t9: float, r: Row) -> Record:
@@ -330,29 +148,15 @@ class JsonlSink:
 
     def write_batch(self, b: Batch) -> None:
         """A batch consumer (`tracer.consume(sink.write_batch)`): the batch's lines, written at once.  The
-        same bytes as `event()` on each of its events: one msgspec struct per event made from its row (a C
-        loop), times and distances rounded for the whole batch (`rounded`), and the few lines msgspec would
-        write otherwise than Python's json (`_plain`) written by the reference encoder in their place."""
+        same bytes as `event()` on each of its events: one msgspec struct per event made from its row with
+        its record's time and distance (`tracer.lines`, compiled with the engine), and the few lines msgspec
+        would write otherwise than Python's json (`_plain`) written by the reference encoder in their place."""
         self.flush()
         rows = b.rows
         if not rows:
             return
         t9 = b.t9
-        lines = list(starmap(_Line, rows))
-        for line, t in zip(lines, t9, strict=True):
-            line.t = t
-        ta = np.asarray(t9, dtype=np.float64)
-        odd = np.flatnonzero(~(((ta >= 1e-4) & (ta < 1e15)) | (ta == 0.0))).tolist()
-        has = [i for i, d in enumerate(map(_DIST, rows)) if d is not None]
-        if has:
-            d3 = rounded(list(map(float, [rows[i][12] for i in has])), 3)     # round(float(dist), 3)
-            for i, d in zip(has, d3, strict=True):
-                lines[i].dist = d
-                if not (1e-4 <= d < 1e15 or d == 0.0):
-                    odd.append(i)
-        if set(map(type, map(_IMPLICIT, rows))) != {bool}:
-            for line, r in zip(lines, rows, strict=True):
-                line.implicit = bool(r[13])
+        lines, odd = make_lines(rows, t9, _Line)
         write = self._fh.write
         binary = self._binary
         if not odd:
@@ -360,7 +164,7 @@ class JsonlSink:
             write(data if binary else data.decode("utf-8"))  # type: ignore[arg-type]
             return
         start = 0
-        for i in sorted(set(odd)):
+        for i in odd:
             if i > start:
                 data = self._encode_lines(lines[start:i])
                 write(data if binary else data.decode("utf-8"))  # type: ignore[arg-type]

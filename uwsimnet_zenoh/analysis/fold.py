@@ -1,0 +1,469 @@
+"""The metrics' per-event fold: frame events in, per-frame, per-flow and per-channel state out, and the
+conservation check of every frame at the end.  The definition behind `analysis.metrics.Accumulator` (which
+builds the results from this state), in a module of its own so that `make` compiles it with mypyc
+(uwsimnet_zenoh/_native.py): the state is native objects with typed fields, the loop C.  Pure Python runs
+the same code.
+
+Times stay the numbers the records give (an int time stays an int, as in `round(3, 9)`); only the delays
+are computed in floats (exact while times are below 2**53 s).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Final
+
+from ..kernel.frame import BROADCAST
+from .read import RX_REASONS, TX_REASONS
+
+_BROADCAST: Final = BROADCAST
+_TX_REASONS: Final = TX_REASONS
+_RX_REASONS: Final = RX_REASONS
+
+
+class Receiver:
+    """One receiver's outcomes of a frame with several."""
+
+    def __init__(self, dev: str, n_rx: int, n_drop: int, reason: str | None, at: int) -> None:
+        self.dev = dev
+        self.n_rx = n_rx
+        self.n_drop = n_drop
+        self.reason = reason          # of the last drop
+        self.at = at                  # n_tx at the last drop
+
+    def as_list(self) -> list[Any]:
+        return [self.dev, self.n_rx, self.n_drop, self.reason, self.at]
+
+
+class FrameState:
+    """One data frame, (transmitter dccommsId, seq): its events counted.  `r_*` is its receiver while it has
+    one (unicast: at most one); from a second receiver on, `multi` holds them all in order."""
+
+    def __init__(self, dev: str, seq: int, flow: int, ch: object, dst: int) -> None:
+        self.dev = dev
+        self.seq = seq
+        self.flow = flow
+        self.ch = ch
+        self.dst = dst                  # -1: the record had none
+        self.n_enq = 0
+        self.n_tx = 0
+        self.n_txdrop = 0
+        self.txdrop: str | None = None  # reason of the last transmitter-side drop
+        self.txdrop_at = 0              # n_tx at it
+        self.r_dev: str | None = None
+        self.r_nrx = 0
+        self.r_ndrop = 0
+        self.r_reason: str | None = None
+        self.r_at = 0
+        self.multi: dict[str, Receiver] | None = None
+        self.t_enq: object = None
+        self.t_tx: object = None        # last transmission
+
+    def receiver(self, dev: str) -> Receiver | None:
+        """The record of receiver `dev` if the frame has several (made one from a second receiver on),
+        else None: the r_* fields are its receiver's (set to `dev` if it had none)."""
+        multi = self.multi
+        if multi is None:
+            rd = self.r_dev
+            if rd is None:
+                self.r_dev = dev
+                return None
+            if rd == dev:
+                return None
+            multi = self.multi = {rd: Receiver(rd, self.r_nrx, self.r_ndrop, self.r_reason, self.r_at)}
+        r = multi.get(dev)
+        if r is None:
+            r = multi[dev] = Receiver(dev, 0, 0, None, 0)
+        return r
+
+    def receivers(self) -> list[Receiver]:
+        if self.multi is not None:
+            return list(self.multi.values())
+        if self.r_dev is None:
+            return []
+        return [Receiver(self.r_dev, self.r_nrx, self.r_ndrop, self.r_reason, self.r_at)]
+
+
+class FlowState:
+    """One flow's counters (analysis.metrics.FlowMetrics' fields that the events make)."""
+
+    def __init__(self, name: str, src: str | None, dst: int | None, payload: int | None) -> None:
+        self.name = name
+        self.src = src
+        self.dst = dst
+        self.payload = payload
+        self.enqueued = 0
+        self.sent = 0
+        self.unique_sent = 0
+        self.delivered = 0
+        self.payload_delivered = 0
+        self.payload_offered = 0
+        self.data_bytes_on_air = 0
+        self.ctrl_sent = 0
+        self.ctrl_bytes_on_air = 0
+        self.t_first: object = None
+        self.t_first_enq: object = None
+        self.t_last: object = None
+        self.delays: list[float] = []
+        self.prev_delay = 0.0
+        self.has_prev = False
+        self.jit_sum = 0.0
+        self.jit_n = 0
+        self.drop_events: dict[str | None, int] = {}    # every data drop event, by reason
+        self.drops: dict[str | None, int] = {}          # final outcomes (settle)
+        self.intended = 0
+        self.in_flight = 0
+
+
+class ChannelState:
+    def __init__(self) -> None:
+        self.enqueued = 0
+        self.sent = 0
+        self.ctrl_sent = 0
+        self.bytes_on_air = 0
+        self.delivered = 0
+        self.drop_events: dict[str | None, int] = {}
+
+
+class Fold:
+    """The state of a run's events so far.  `meta_tx`/`meta_rx`: (channel, address) -> dccommsId from the
+    meta (the fallbacks of transmitters learnt from enq/tx events); `header`: header bytes per dccommsId."""
+
+    def __init__(self, meta_tx: dict[tuple[object, int], str], meta_rx: dict[tuple[object, int], str],
+                 header: dict[str, int]) -> None:
+        self.meta_tx = meta_tx
+        self.meta_rx = meta_rx
+        self.header = header
+        self.tx: dict[object, dict[int, str]] = {}          # learnt: ch -> src -> transmitter dccommsId
+        self.flows: list[FlowState] = []
+        self.fid: dict[str, int] = {}
+        self.frames: list[FrameState] = []
+        self.index: dict[str, dict[int, FrameState]] = {}  # transmitter dccommsId -> seq -> frame
+        self.max_tx_seq: dict[str, int] = {}
+        self.channels: dict[object, ChannelState] = {}
+        self.t_end: object = None           # None: no event yet
+
+    def flow(self, name: str, src: str | None, dst: int | None, payload: int | None) -> int:
+        """The id of flow `name`, a new one with these fields if it has none."""
+        i = self.fid.get(name)
+        if i is None:
+            i = len(self.flows)
+            self.flows.append(FlowState(name, src, dst, payload))
+            self.fid[name] = i
+        return i
+
+    def tx_dev(self, ch: object, src: int) -> str:
+        """The dccommsId transmitting as `src` on channel `ch` (or `ch:src` if nobody knows)."""
+        dev = self.tx.get(ch, {}).get(src)
+        if dev is None:
+            dev = self.meta_tx.get((ch, src))
+            if dev is None:
+                dev = f"{ch}:{src}"
+        return dev
+
+    def frame(self, dev: str, seq: int) -> FrameState | None:
+        by = self.index.get(dev)
+        return by.get(seq) if by is not None else None
+
+    def _channel(self, ch: object) -> ChannelState:
+        c = self.channels.get(ch)
+        if c is None:
+            c = self.channels[ch] = ChannelState()
+        return c
+
+    def _ctrl_flow(self, flow: str | None, seq: int, src: int, dst: object, ch: object, tx_dev: str) -> str:
+        """The flow a control frame serves: its `flow`, else the data frame it is about (an RTS names the
+        data frame's (src, seq, dst); a CTS/ACK answers with src and dst swapped), else its transmitter."""
+        if flow is not None:
+            return flow
+        f = self.frame(tx_dev, seq)
+        if f is not None and (f.dst == dst or f.dst == _BROADCAST):
+            return self.flows[f.flow].name
+        if isinstance(dst, int) and not isinstance(dst, bool) and dst != _BROADCAST:
+            f = self.frame(self.tx_dev(ch, dst), seq)
+            if f is not None and (f.dst == src or f.dst == _BROADCAST):
+                return self.flows[f.flow].name
+        return tx_dev
+
+    def rows(self, rows: list[Any], t9: list[Any]) -> None:
+        """Frame events in order, each a row (t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, fifo,
+        dist, implicit) (trace.events.Row; `dist` only tested for None, `fifo` unused), `t9[k]` the time
+        of row k's record."""
+        if len(rows) != len(t9):
+            raise ValueError(f"{len(rows)} rows and {len(t9)} times")
+        index = self.index
+        flows = self.flows
+        dtx = self.tx
+        header = self.header
+        max_tx_seq = self.max_tx_seq
+        channels = self.channels
+        last_ch: object = None
+        c = ChannelState()
+        ctx: dict[int, str] = {}                # the channel's transmitters
+        last_dev = ""
+        dev_frames: dict[int, FrameState] = {}  # the transmitter's frames
+        t_end = self.t_end
+        t_end_f = t_end if isinstance(t_end, float) else -math.inf     # t_end when it is a float
+        k = 0
+        try:
+            for row in rows:
+                t: object = t9[k]
+                k += 1
+                r: tuple[Any, ...] = row
+                ev: str = r[1]
+                if isinstance(t, float) and isinstance(t_end, float):
+                    if t > t_end_f:
+                        t_end = t
+                        t_end_f = t
+                elif t_end is None or t > t_end:  # type: ignore[operator]
+                    t_end = t
+                    t_end_f = t if isinstance(t, float) else -math.inf
+                implicit: object = r[13]
+                if implicit and ev == "rx":
+                    continue        # handed to a modem that was not the addressee (no MAC): not a delivery
+                ch: object = r[2]
+                dev: str = r[3]
+                src: int = r[4]
+                seq: int = r[6]
+                size: int = r[7]
+                reason: str | None = r[10]
+                if ch is not last_ch or last_ch is None:
+                    c = channels.get(ch) or self._channel(ch)
+                    got = dtx.get(ch)
+                    if got is None:
+                        got = dtx[ch] = {}
+                    ctx = got
+                    last_ch = ch
+                if ev == "rx":
+                    c.delivered += 1
+                    at_tx = False
+                    tx_dev = ctx.get(src) or self.tx_dev(ch, src)
+                elif ev == "drop":
+                    de = c.drop_events
+                    de[reason] = de.get(reason, 0) + 1
+                    known = ctx.get(src)
+                    if known is not None:
+                        at_tx = dev == known
+                    else:
+                        at_tx = reason in _TX_REASONS or (reason not in _RX_REASONS and r[12] is None)
+                    if at_tx:
+                        if known is None:
+                            ctx[src] = dev
+                        tx_dev = dev
+                    else:
+                        tx_dev = known if known is not None else self.tx_dev(ch, src)
+                else:
+                    at_tx = True
+                    tx_dev = dev
+                    if src not in ctx:
+                        ctx[src] = dev
+                    if ev == "tx":
+                        c.sent += 1
+                        c.bytes_on_air += size
+                    else:
+                        c.enqueued += 1
+                kind: str = r[9]
+                if kind != "data":
+                    if ev == "tx":      # control frames only count as bytes on air of the flow they serve
+                        c.ctrl_sent += 1
+                        flow: str | None = r[8]
+                        name = self._ctrl_flow(flow, seq, src, r[5], ch, tx_dev)
+                        m = flows[self.flow(name, tx_dev, None, None)]
+                        m.ctrl_sent += 1
+                        m.ctrl_bytes_on_air += size
+                    continue
+
+                if tx_dev is not last_dev:
+                    got_frames = index.get(tx_dev)
+                    if got_frames is None:
+                        got_frames = index[tx_dev] = {}
+                    dev_frames = got_frames
+                    last_dev = tx_dev
+                f = dev_frames.get(seq)
+                if f is None:
+                    dst: object = r[5]
+                    fdst: int = -1 if dst is None else dst  # type: ignore[assignment]
+                    flow = r[8]
+                    fl = self.flow(flow if flow is not None else tx_dev, tx_dev, fdst, None)
+                    f = FrameState(tx_dev, seq, fl, ch, fdst)
+                    dev_frames[seq] = f
+                    self.frames.append(f)
+                m = flows[f.flow]
+                if m.t_first is None:
+                    m.t_first = t
+                m.t_last = t
+                if m.src is None:
+                    m.src = tx_dev
+                if m.dst is None and f.dst >= 0:
+                    m.dst = f.dst
+
+                if ev == "enq":
+                    f.n_enq += 1
+                    if f.t_enq is None:
+                        f.t_enq = t
+                    if m.t_first_enq is None:
+                        m.t_first_enq = t
+                    m.enqueued += 1
+                    p = m.payload
+                    m.payload_offered += p if p is not None else max(0, size - header.get(tx_dev, 0))
+                elif ev == "tx":
+                    f.n_tx += 1
+                    f.t_tx = t
+                    if f.n_tx == 1:
+                        m.unique_sent += 1
+                        if seq > max_tx_seq.get(tx_dev, -1):
+                            max_tx_seq[tx_dev] = seq
+                    m.sent += 1
+                    m.data_bytes_on_air += size
+                elif ev == "rx":
+                    if f.multi is None and (f.r_dev is None or f.r_dev == dev):
+                        f.r_dev = dev
+                        f.r_nrx += 1
+                    else:
+                        rc = f.receiver(dev)
+                        if rc is None:
+                            f.r_nrx += 1
+                        else:
+                            rc.n_rx += 1
+                    m.delivered += 1
+                    p = m.payload
+                    m.payload_delivered += p if p is not None else max(0, size - header.get(tx_dev, 0))
+                    t_enq = f.t_enq
+                    if t_enq is not None:
+                        d = float(t) - float(t_enq)  # type: ignore[arg-type]
+                        m.delays.append(d)
+                        if m.has_prev:
+                            m.jit_sum += abs(d - m.prev_delay)
+                            m.jit_n += 1
+                        m.prev_delay = d
+                        m.has_prev = True
+                else:   # drop
+                    fde = m.drop_events
+                    fde[reason] = fde.get(reason, 0) + 1
+                    if at_tx:
+                        f.n_txdrop += 1
+                        f.txdrop = reason
+                        f.txdrop_at = f.n_tx
+                    elif f.multi is None and (f.r_dev is None or f.r_dev == dev):
+                        f.r_dev = dev
+                        f.r_ndrop += 1
+                        f.r_reason = reason
+                        f.r_at = f.n_tx
+                    else:
+                        rc = f.receiver(dev)
+                        if rc is None:
+                            f.r_ndrop += 1
+                            f.r_reason = reason
+                            f.r_at = f.n_tx
+                        else:
+                            rc.n_drop += 1
+                            rc.reason = reason
+                            rc.at = f.n_tx
+        finally:
+            self.t_end = t_end
+
+    def settle(self, end: object, horizon: float, limit: int) -> tuple[list[str], int, list[tuple[Any, ...]]]:
+        """Final outcomes of every frame (into its flow's `drops`, `intended`, `in_flight`) and the conservation
+        check: (violations, at most `limit` of them, the count of all, frames in flight as (dev, seq, flow,
+        state, t_enq, t_tx)).  Call it once, at the end."""
+        violations: list[str] = []
+        total = 0
+        in_flight: list[tuple[Any, ...]] = []
+        flows = self.flows
+        meta_rx = self.meta_rx
+        for f in self.frames:
+            m = flows[f.flow]
+            drops = m.drops
+            nt = f.n_tx
+            ntd = f.n_txdrop
+            final = ntd > 0 and f.txdrop_at == nt
+            fdst = f.dst
+            multi = f.multi
+            if multi is None and f.n_enq == 1 and ntd <= 1 and not (ntd and f.txdrop_at < nt) and (
+                    f.r_dev is not None or ntd) and f.r_nrx <= 1 and f.r_nrx + f.r_ndrop <= nt:
+                # the common case, no violation possible but a receiver that is not the addressee
+                rd = f.r_dev
+                if rd is not None and fdst != _BROADCAST:
+                    who = meta_rx.get((f.ch, fdst))
+                    if who is not None and rd != who:
+                        total += self._odd(f, end, horizon, violations, in_flight, limit)
+                        continue
+                if rd is not None and f.r_nrx == 0 and f.r_ndrop and f.r_at == nt and not final:
+                    rr = f.r_reason
+                    drops[rr] = drops.get(rr, 0) + 1
+                if ntd and not f.r_nrx:
+                    tr = f.txdrop
+                    drops[tr] = drops.get(tr, 0) + 1
+                if nt:
+                    m.intended += 1 if (rd is not None or fdst != _BROADCAST) else 0
+                continue
+            total += self._odd(f, end, horizon, violations, in_flight, limit)
+        if total > len(violations):
+            violations.append(f"... {total - len(violations)} more violations")
+        return violations, total, in_flight
+
+    def _odd(self, f: FrameState, end: object, horizon: float, violations: list[str],
+             in_flight: list[tuple[Any, ...]], limit: int) -> int:
+        """A frame with several receivers, a violation or no outcome: its outcomes and messages one by one;
+        the number of its messages."""
+        m = self.flows[f.flow]
+        drops = m.drops
+        label = f"{f.dev} seq {f.seq} (flow {m.name}): "
+        msgs: list[str] = []
+        rcv = f.receivers()
+        nt = f.n_tx
+        ntd = f.n_txdrop
+        tda = f.txdrop_at
+        fdst = f.dst
+        any_rx = False
+        final = ntd > 0 and tda == nt
+        for r in rcv:
+            if r.n_rx:
+                any_rx = True
+                if r.n_rx > 1:
+                    msgs.append(f"delivered {r.n_rx} times at {r.dev}")
+            elif r.n_drop and r.at == nt and not final:
+                drops[r.reason] = drops.get(r.reason, 0) + 1
+            if r.n_rx + r.n_drop > nt:
+                msgs.append(f"{r.n_rx + r.n_drop} outcomes at {r.dev} for {nt} transmission(s)")
+        txr = f.txdrop
+        if ntd and not any_rx:
+            drops[txr] = drops.get(txr, 0) + 1
+        if nt:
+            m.intended += len(rcv) if fdst == _BROADCAST else 1
+        ne = f.n_enq
+        if ne == 0:
+            msgs.append("no enq record")
+        elif ne > 1:
+            msgs.append(f"enqueued {ne} times")
+        if ntd > 1:
+            msgs.append(f"dropped {ntd} times at the transmitter")
+        if ntd and tda < nt:
+            msgs.append(f"transmitted after its transmitter-side drop ({txr})")
+        if fdst != _BROADCAST and rcv:
+            if len(rcv) > 1:
+                names = ", ".join(sorted(r.dev for r in rcv))
+                msgs.append(f"outcomes at {len(rcv)} receivers ({names}) of a unicast frame")
+            else:
+                addressee = self.meta_rx.get((f.ch, fdst))
+                rdev = rcv[0].dev
+                if addressee is not None and rdev != addressee:
+                    msgs.append(f"outcome at {rdev}, not at its addressee {addressee}")
+        if not rcv and not ntd:
+            if nt == 0:
+                if self.max_tx_seq.get(f.dev, -1) > f.seq:
+                    msgs.append(f"never transmitted nor dropped, although later frames of {f.dev} were sent")
+                else:
+                    in_flight.append((f.dev, f.seq, m.name, "queued", f.t_enq, None))
+                    m.in_flight += 1
+            else:
+                t_tx = f.t_tx
+                if t_tx is not None and t_tx >= end - horizon:  # type: ignore[operator]
+                    in_flight.append((f.dev, f.seq, m.name, "on air", f.t_enq, t_tx))
+                    m.in_flight += 1
+                else:
+                    msgs.append(f"transmitted at {t_tx:g} s, no outcome by the end ({end:g} s)")
+        for msg in msgs:
+            if len(violations) < limit:
+                violations.append(label + msg)
+        return len(msgs)
