@@ -5,15 +5,19 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..analysis import TraceError, read_trace
-from ..analysis.pcap import DISSECTOR, trace_to_pcapng
 from ..app.virtual import load_scene_file
 from ..errors import UserError
+
+if TYPE_CHECKING:
+    import subprocess
+# analysis.pcap and subprocess are imported by the functions that use them: `uwsimnet run` imports this
+# module, and a run without --view needs neither (start-up time)
 
 DEFAULT_PORT = 8765
 
@@ -46,6 +50,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_pcap(args: argparse.Namespace) -> int:
+    from ..analysis.pcap import DISSECTOR, trace_to_pcapng  # noqa: PLC0415 - see the imports
+
     if args.dissector:
         print(DISSECTOR)
         return 0
@@ -151,6 +157,8 @@ def _live(args: argparse.Namespace) -> int:
 
 def start_beside_run(args: argparse.Namespace, world: str, endpoint: str) -> subprocess.Popen | None:
     """`uwsimnet run --view` (realtime): the live page as its own process, a client of the run's router."""
+    import subprocess  # noqa: PLC0415 - see the imports
+
     argv = [sys.executable, "-m", "uwsimnet_zenoh.cli", "view", "--connect", endpoint, "--world", world,
             "--scene", args.scene, "--wait", "30", "--port", str(args.view_port)]
     if args.zenoh_config:
@@ -161,6 +169,8 @@ def start_beside_run(args: argparse.Namespace, world: str, endpoint: str) -> sub
 
 
 def stop_viewer(p: subprocess.Popen) -> None:
+    import subprocess  # noqa: PLC0415 - see the imports
+
     p.terminate()
     try:
         p.wait(10)
