@@ -8,12 +8,16 @@ line it came from so that errors found later (unknown flow source, duplicate add
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from ..kernel.frame import BROADCAST
-from ..phy.acoustic import PRESETS, AcousticChannelParams
+
+if TYPE_CHECKING:
+    from ..phy.acoustic import AcousticChannelParams
+# phy.acoustic is imported by the acoustic models' methods: a scene without acoustic devices never needs it
+# (start-up time)
 
 
 class _Model(BaseModel):
@@ -98,6 +102,8 @@ class Device(_Model):
                 spec = AcousticDeviceSpec.model_validate(data["acoustic"])
             except ValueError:
                 return data
+            from ..phy.acoustic import PRESETS  # noqa: PLC0415 - see the imports
+
             rate = PRESETS[spec.preset].bitrate_bps if spec.preset is not None else None
             if rate is not None:
                 data = {**data, "bitrate": rate}
@@ -239,6 +245,8 @@ class AcousticChannelSpec(_Model):
 
     def params(self, spreading_k: float | None = None) -> AcousticChannelParams:
         """This water as physics (`spreading_k` overrides the channel's, for a device's K)."""
+        from ..phy.acoustic import AcousticChannelParams  # noqa: PLC0415 - see the imports
+
         return AcousticChannelParams(
             temperature_c=self.temperature_c, salinity_ppt=self.salinity_ppt, depth_m=self.depth_m, ph=self.ph,
             spreading_k=self.spreading_k if spreading_k is None else spreading_k, absorption=self.absorption,
@@ -289,7 +297,11 @@ class AcousticDeviceSpec(_Model):
     @field_validator("preset")
     @classmethod
     def _known_preset(cls, name: str | None) -> str | None:
-        if name is not None and name not in PRESETS:
+        if name is None:
+            return name
+        from ..phy.acoustic import PRESETS  # noqa: PLC0415 - see the imports
+
+        if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r} (known: {', '.join(sorted(PRESETS))})")
         return name
 
