@@ -10,14 +10,12 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..analysis import TraceError, read_trace
-from ..app.virtual import load_scene_file
 from ..errors import UserError
 
 if TYPE_CHECKING:
     import subprocess
-# analysis.pcap and subprocess are imported by the functions that use them: `uwsimnet run` imports this
-# module, and a run without --view needs neither (start-up time)
+# the rest is imported by the functions that use it: every command imports this module (its parser), and a
+# run without --view needs none of it (start-up time)
 
 DEFAULT_PORT = 8765
 
@@ -50,7 +48,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_pcap(args: argparse.Namespace) -> int:
-    from ..analysis.pcap import DISSECTOR, trace_to_pcapng  # noqa: PLC0415 - see the imports
+    from ..analysis import TraceError  # noqa: PLC0415 - see the imports
+    from ..analysis.pcap import DISSECTOR, trace_to_pcapng  # noqa: PLC0415
 
     if args.dissector:
         print(DISSECTOR)
@@ -75,6 +74,8 @@ def _check_trace_file(path: str) -> None:
 
 def replay_doc(trace: str, scene_path: str | None) -> dict:
     """The replay document of a trace file, or UserError (one line) if it is not a readable trace."""
+    from ..analysis import TraceError, read_trace  # noqa: PLC0415 - see the imports
+    from ..app.virtual import load_scene_file  # noqa: PLC0415
     from ..view.state import replay_document
 
     _check_trace_file(trace)
@@ -122,6 +123,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def _live(args: argparse.Namespace) -> int:
+    from ..app.virtual import load_scene_file  # noqa: PLC0415 - see the imports
     from ..bus.session import BusError
     from ..view.live import LiveSource, client_session, discover_world
     from ..view.server import ViewServer
