@@ -15,7 +15,7 @@ from pathlib import Path
 
 from ..app import ros2
 from ..errors import UserError, UwsimnetError
-from . import view
+from ..view import DEFAULT_PORT as VIEW_PORT
 from .limits import DURATION_MAX, REALTIME_ONLY, SPEED_RANGE, check_numbers
 from .startup import importing
 from .zenoh_flags import add_zenoh_flags
@@ -74,6 +74,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     with importing():
         from ..app.checks import failed_plugin  # noqa: PLC0415 - see the imports
         from ..app.virtual import load_scene_file, print_summary, simulate  # noqa: PLC0415
+        if args.view:
+            from . import view  # noqa: PLC0415 - the page only
 
     check_numbers(args)
     scene = load_scene_file(args.scene, verbose=args.verbose)
@@ -192,7 +194,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     r.add_argument("--view", action="store_true",
                    help="the web page of the run (uwsimnet view): live beside a realtime run, else the replay"
                         " of its trace once it ends")
-    r.add_argument("--view-port", type=int, default=view.DEFAULT_PORT, help="port of that page")
+    r.add_argument("--view-port", type=int, default=VIEW_PORT, help="port of that page")
     r.set_defaults(fn=cmd_run, open=False)
 
     ro = sub.add_parser("router", help="a standalone Zenoh router for this machine (other machines connect)")
@@ -219,7 +221,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     pl.set_defaults(fn=cmd_plot)
 
     if command not in CORE:
-        from . import deploy, drivers, experiment, sweep  # noqa: PLC0415 - only for their commands (start-up)
+        from . import deploy, drivers, experiment, sweep, view  # noqa: PLC0415 - only for their commands (start-up)
 
         for add_commands in (drivers.add_commands, experiment.add_commands, sweep.add_commands,
                              deploy.add_commands, view.add_commands):

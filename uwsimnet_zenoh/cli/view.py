@@ -11,13 +11,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import UserError
+from ..view import DEFAULT_PORT
 
 if TYPE_CHECKING:
     import subprocess
-# the rest is imported by the functions that use it: every command imports this module (its parser), and a
-# run without --view needs none of it (start-up time)
-
-DEFAULT_PORT = 8765
+# the rest is imported by the functions that use it: `uwsimnet run --view` needs one of them (start-up time)
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
