@@ -150,6 +150,37 @@ def test_virtual_run_loads_no_zenoh(tmp_path: Path) -> None:
     assert DEFAULT_CONNECT == DEFAULT_ENDPOINT
 
 
+STARTUP_PROBE = ("import sys, contextlib, io; from uwsimnet_zenoh.cli import main\n"
+                 "with contextlib.redirect_stdout(io.StringIO()): rc = main(sys.argv[1:])\n"
+                 "print(rc, sorted(m for m in sys.modules if m in sys.argv[0].split(',')"
+                 " or m.startswith(('uwsimnet_zenoh.ros2.wire', 'uwsimnet_zenoh.ros2.bridge', 'uwsimnet_zenoh.bus.',"
+                 " 'uwsimnet_zenoh.view.', 'uwsimnet_zenoh.drivers', 'uwsimnet_zenoh.bridges', 'zenoh', 'rich'))))")
+
+
+def _imported(argv: list[str], also: tuple[str, ...]) -> str:
+    code = STARTUP_PROBE.replace("sys.argv[0]", repr(",".join(also)))
+    p = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert p.returncode == 0, p.stderr
+    return p.stdout.splitlines()[-1]
+
+
+@pytest.mark.parametrize("trace", [False, True])
+def test_virtual_run_imports_only_what_it_uses(tmp_path: Path, trace: bool) -> None:
+    """Start-up time (issue #19): a virtual run of a NOMAC, non-acoustic scene imports no ROS 2 wire, Zenoh edge,
+    page, driver or pcap module, nor the MACs and the acoustic physics it does not use."""
+    argv = ["run", str(TWO)] + (["--trace", str(tmp_path / "t.jsonl")] if trace else [])
+    unused = ("uwsimnet_zenoh.analysis.pcap", "uwsimnet_zenoh.analysis.figures", "uwsimnet_zenoh.app.realtime",
+              "uwsimnet_zenoh.mac.aloha", "uwsimnet_zenoh.mac.sfama", "uwsimnet_zenoh.phy.acoustic", "matplotlib")
+    assert _imported(argv, unused) == "0 []"
+
+
+def test_report_imports_no_scene_nor_engine(tmp_path: Path) -> None:
+    t = tmp_path / "t.jsonl"
+    assert uwsimnet("run", str(TWO), "--trace", str(t)).returncode == 0
+    assert _imported(["report", str(t)], ("pydantic", "lxml", "uwsimnet_zenoh.engine", "uwsimnet_zenoh.scene")) \
+        == "0 []"
+
+
 def test_run_parser_alone_parses_as_the_whole() -> None:
     from uwsimnet_zenoh.cli.main import build_parser
 

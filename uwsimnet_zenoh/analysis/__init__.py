@@ -28,12 +28,12 @@ from .read import (
     open_source,
     read_trace,
 )
-from .tables import format_markdown, format_report, format_text, markdown_table, report_json
+from .tables import format_markdown, format_report, format_text, markdown_table, report_json, show_metrics
 
 __all__ = [
     "Accumulator", "Analysis", "ChannelMetrics",
     "Conservation", "DEFAULT_HORIZON", "DeviceMap", "EVENTS", "FlowMetrics", "InFlight", "RX_REASONS",
     "Source", "TX_REASONS", "TraceError", "analyse", "conservation", "flow_metrics", "flow_name",
     "format_markdown", "format_report", "format_text", "is_int", "is_num", "markdown_table", "open_source",
-    "read_trace", "report_json"
+    "read_trace", "report_json", "show_metrics"
 ]

@@ -1,7 +1,9 @@
-"""Per-flow metrics as tables: rich on a terminal, aligned plain text, markdown and JSON."""
+"""Per-flow metrics as tables: rich on a terminal, aligned plain text, markdown and JSON; `show_metrics` prints
+one (`uwsimnet run` and `uwsimnet report`)."""
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -108,6 +110,16 @@ class FlowTable:
 def format_report(metrics: Mapping[str, FlowMetrics], title: str | None = "Per-flow metrics") -> FlowTable:
     """A rich renderable of the per-flow metrics that fits the console's width (see FlowTable)."""
     return FlowTable(metrics, title)
+
+
+def show_metrics(metrics: Mapping[str, FlowMetrics]) -> None:
+    """The per-flow table on stdout: rich on a terminal, plain aligned text when piped (rich would squeeze it)."""
+    if sys.stdout.isatty():
+        from rich.console import Console  # noqa: PLC0415 - a terminal only (start-up time)
+
+        Console().print(format_report(metrics))
+    else:
+        print(format_text(metrics))
 
 
 def _plain(header: list[str] | tuple[str, ...], rows: list[list[str]], left: set[int]) -> str:

@@ -6,16 +6,15 @@ from __future__ import annotations
 import contextlib
 import os
 import re
-import socket
 from typing import TYPE_CHECKING, Any
 
 from ..errors import UserError
-from ..ros2 import wire as rw
+from ..ros2.distros import DEFAULT_DISTRO, DISTROS
 
 if TYPE_CHECKING:
     from ..ros2.bridge import ModemInfo, Options, VehicleInfo
-# ros2.bridge is imported by the functions that use it: `uwsimnet run` builds its parser with
-# add_arguments, and a virtual run needs nothing more of ROS 2 (start-up time)
+# ros2.wire and ros2.bridge are imported by the functions that use them: `uwsimnet run` builds its parser
+# with add_arguments, and a virtual run needs nothing more of ROS 2 (start-up time)
 
 ROS_PORT = 7447
 ROS_LISTEN = [f"tcp/127.0.0.1:{ROS_PORT}", f"tcp/[::1]:{ROS_PORT}"]
@@ -29,8 +28,8 @@ def add_arguments(r: Any) -> None:
     g.add_argument("--ros2", action="store_true",
                    help="be a ROS 2 participant on rmw_zenoh's wire: modem nodes and topics, poses from ROS")
     g.add_argument("--ros-domain", type=int, metavar="N", help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else 0)")
-    g.add_argument("--ros-distro", choices=rw.DISTROS,
-                   help=f"the ROS 2 distro of the other nodes (default: $ROS_DISTRO, else {rw.DEFAULT_DISTRO})")
+    g.add_argument("--ros-distro", choices=DISTROS,
+                   help=f"the ROS 2 distro of the other nodes (default: $ROS_DISTRO, else {DEFAULT_DISTRO})")
     g.add_argument("--ros-profile", action="append", choices=("native", "dmac2", "stonefish"),
                    help="modem topics: native (uwsimnet_msgs, default), dmac2 (send/recv DMACPayload),"
                         " stonefish (data_to_send/received_data); repeatable")
@@ -47,15 +46,16 @@ def enabled(args: Any) -> bool:
 
 
 def options(args: Any) -> Options:
-    from ..ros2.bridge import Options, parse_pose_input  # noqa: PLC0415 - see the imports
+    from ..ros2 import wire as rw  # noqa: PLC0415 - see the imports
+    from ..ros2.bridge import Options, parse_pose_input  # noqa: PLC0415
 
     domain = args.ros_domain
     if domain is None:
         env = os.environ.get("ROS_DOMAIN_ID", "").strip()
         domain = int(env) if env.isdigit() else 0
-    distro = args.ros_distro or os.environ.get("ROS_DISTRO", "").strip().lower() or rw.DEFAULT_DISTRO
-    if distro not in rw.DISTROS:
-        raise UserError(f"ROS_DISTRO={distro}: uwsimnet speaks {', '.join(rw.DISTROS)} (give --ros-distro)")
+    distro = args.ros_distro or os.environ.get("ROS_DISTRO", "").strip().lower() or DEFAULT_DISTRO
+    if distro not in DISTROS:
+        raise UserError(f"ROS_DISTRO={distro}: uwsimnet speaks {', '.join(DISTROS)} (give --ros-distro)")
     try:
         return Options(domain=domain, distro=distro, namespace=args.ros_namespace,
                        profiles=tuple(dict.fromkeys(args.ros_profile or ["native"])),
@@ -80,7 +80,8 @@ def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
 
 def check(opts: Options, scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
     """The scene's view, once the options are known to fit it (UserError otherwise), before any session."""
-    from ..ros2.bridge import check_poses  # noqa: PLC0415 - see the imports
+    from ..ros2 import wire as rw  # noqa: PLC0415 - see the imports
+    from ..ros2.bridge import check_poses  # noqa: PLC0415
 
     modems, vehicles = scene_view(scene)
     try:
@@ -100,6 +101,8 @@ def codec(distro: str) -> Any:
 
 def router_running(host: str = "127.0.0.1", port: int = ROS_PORT, timeout: float = 0.3) -> bool:
     """Something (rmw_zenohd, another router) accepts TCP connections on the ROS router port."""
+    import socket  # noqa: PLC0415 - a --ros2 run only (start-up time)
+
     with contextlib.suppress(OSError), socket.create_connection((host, port), timeout=timeout):
         return True
     return False

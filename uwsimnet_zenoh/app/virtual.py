@@ -17,7 +17,7 @@ from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..analysis import Accumulator, Analysis, flow_metrics, format_report, format_text
+from ..analysis import Accumulator, Analysis, flow_metrics, show_metrics
 from ..engine.network import Network
 from ..errors import UserError
 from ..kernel.scheduler import Interrupted
@@ -176,16 +176,6 @@ def _slices(net, end: float, progress: bool) -> None:
         for i in range(1, steps + 1):
             net.run(end * i / steps)
             bar.update(task, completed=net.now)
-
-
-def show_metrics(metrics) -> None:
-    """The per-flow table: rich on a terminal, plain aligned text when piped (rich would squeeze it)."""
-    if sys.stdout.isatty():
-        from rich.console import Console  # noqa: PLC0415 - a terminal only (start-up time)
-
-        Console().print(format_report(metrics))
-    else:
-        print(format_text(metrics))
 
 
 def print_summary(trace, net) -> None:

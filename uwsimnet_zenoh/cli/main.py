@@ -14,18 +14,24 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..app import ros2
-from ..app.checks import check, failed_plugin
-from ..app.virtual import load_scene_file, print_summary, show_metrics, simulate
 from ..errors import UserError, UwsimnetError
-from . import view
+from ..view import DEFAULT_PORT as VIEW_PORT
 from .limits import DURATION_MAX, REALTIME_ONLY, SPEED_RANGE, check_numbers
+from .startup import importing
 from .zenoh_flags import add_zenoh_flags
+
+# What a command runs is imported by its function (in `importing()`): `uwsimnet report` or `router` never
+# imports the engine, pydantic or the scene models (start-up time)
 
 DEFAULT_VIEW_ROUTER = "tcp/127.0.0.1:7447"
 """Where the page of `run --view` connects when the run says nothing (the run's default listen endpoint)."""
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
+    with importing():
+        from ..app.checks import check  # noqa: PLC0415 - see the imports
+        from ..app.virtual import load_scene_file  # noqa: PLC0415
+
     scene = load_scene_file(args.scene, verbose=args.verbose)
     check(scene)                        # the build step and the tracing plug-in, as a run makes them
     n_dev = len(scene.devices())
@@ -65,6 +71,12 @@ def check_applies(args: argparse.Namespace, clock: str) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    with importing():
+        from ..app.checks import failed_plugin  # noqa: PLC0415 - see the imports
+        from ..app.virtual import load_scene_file, print_summary, simulate  # noqa: PLC0415
+        if args.view:
+            from . import view  # noqa: PLC0415 - the page only
+
     check_numbers(args)
     scene = load_scene_file(args.scene, verbose=args.verbose)
     clock = args.clock or default_clock(scene, args)
@@ -76,7 +88,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.speed is None:
         args.speed = 1.0
     if clock == "realtime":
-        from ..app.realtime import run_realtime  # noqa: PLC0415 - zenoh only when needed
+        with importing():
+            from ..app.realtime import run_realtime  # noqa: PLC0415 - zenoh only when needed
 
         viewer = view.start_beside_run(args, scene.world, (args.connect or args.listen or [DEFAULT_VIEW_ROUTER])[0]) \
             if args.view else None
@@ -108,7 +121,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from ..analysis import TraceError, flow_metrics, report_json
+    with importing():
+        from ..analysis import TraceError, flow_metrics, report_json, show_metrics  # noqa: PLC0415
 
     if not Path(args.trace).is_file():
         raise UserError(f"{args.trace}: no such trace file")
@@ -124,8 +138,9 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from ..analysis import TraceError
-    from ..analysis.figures import plot_trace
+    with importing():
+        from ..analysis import TraceError  # noqa: PLC0415
+        from ..analysis.figures import plot_trace  # noqa: PLC0415
 
     if not Path(args.trace).is_file():
         raise UserError(f"{args.trace}: no such trace file")
@@ -179,7 +194,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     r.add_argument("--view", action="store_true",
                    help="the web page of the run (uwsimnet view): live beside a realtime run, else the replay"
                         " of its trace once it ends")
-    r.add_argument("--view-port", type=int, default=view.DEFAULT_PORT, help="port of that page")
+    r.add_argument("--view-port", type=int, default=VIEW_PORT, help="port of that page")
     r.set_defaults(fn=cmd_run, open=False)
 
     ro = sub.add_parser("router", help="a standalone Zenoh router for this machine (other machines connect)")
@@ -206,7 +221,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     pl.set_defaults(fn=cmd_plot)
 
     if command not in CORE:
-        from . import deploy, drivers, experiment, sweep  # noqa: PLC0415 - only for their commands (start-up)
+        from . import deploy, drivers, experiment, sweep, view  # noqa: PLC0415 - only for their commands (start-up)
 
         for add_commands in (drivers.add_commands, experiment.add_commands, sweep.add_commands,
                              deploy.add_commands, view.add_commands):

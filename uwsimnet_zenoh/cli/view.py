@@ -5,17 +5,17 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ..analysis import TraceError, read_trace
-from ..analysis.pcap import DISSECTOR, trace_to_pcapng
-from ..app.virtual import load_scene_file
 from ..errors import UserError
+from ..view import DEFAULT_PORT
 
-DEFAULT_PORT = 8765
+if TYPE_CHECKING:
+    import subprocess
+# the rest is imported by the functions that use it: `uwsimnet run --view` needs one of them (start-up time)
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -46,6 +46,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_pcap(args: argparse.Namespace) -> int:
+    from ..analysis import TraceError  # noqa: PLC0415 - see the imports
+    from ..analysis.pcap import DISSECTOR, trace_to_pcapng  # noqa: PLC0415
+
     if args.dissector:
         print(DISSECTOR)
         return 0
@@ -69,6 +72,8 @@ def _check_trace_file(path: str) -> None:
 
 def replay_doc(trace: str, scene_path: str | None) -> dict:
     """The replay document of a trace file, or UserError (one line) if it is not a readable trace."""
+    from ..analysis import TraceError, read_trace  # noqa: PLC0415 - see the imports
+    from ..app.virtual import load_scene_file  # noqa: PLC0415
     from ..view.state import replay_document
 
     _check_trace_file(trace)
@@ -116,6 +121,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def _live(args: argparse.Namespace) -> int:
+    from ..app.virtual import load_scene_file  # noqa: PLC0415 - see the imports
     from ..bus.session import BusError
     from ..view.live import LiveSource, client_session, discover_world
     from ..view.server import ViewServer
@@ -151,6 +157,8 @@ def _live(args: argparse.Namespace) -> int:
 
 def start_beside_run(args: argparse.Namespace, world: str, endpoint: str) -> subprocess.Popen | None:
     """`uwsimnet run --view` (realtime): the live page as its own process, a client of the run's router."""
+    import subprocess  # noqa: PLC0415 - see the imports
+
     argv = [sys.executable, "-m", "uwsimnet_zenoh.cli", "view", "--connect", endpoint, "--world", world,
             "--scene", args.scene, "--wait", "30", "--port", str(args.view_port)]
     if args.zenoh_config:
@@ -161,6 +169,8 @@ def start_beside_run(args: argparse.Namespace, world: str, endpoint: str) -> sub
 
 
 def stop_viewer(p: subprocess.Popen) -> None:
+    import subprocess  # noqa: PLC0415 - see the imports
+
     p.terminate()
     try:
         p.wait(10)

@@ -18,10 +18,9 @@ Resolution of a device's parameters, first match wins:
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..mac import Mac, resolve
-from ..phy.acoustic import PRESETS, AcousticChannelParams, AcousticLink, AcousticModemParams, FixedBerLink
 from ..phy.error import RateErrorModel
 from ..phy.modem import Modem
 
@@ -29,6 +28,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from ..kernel.scheduler import Scheduler
+    from ..phy.acoustic import AcousticChannelParams, AcousticLink, AcousticModemParams, FixedBerLink
     from ..phy.channel import Channel as PhyChannel
     from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device, MacSpec
     from ..trace.tracer import Tracer
@@ -41,6 +41,17 @@ DEFAULT_CARRIER_KHZ = 25.0
 """Carrier when neither the device nor a preset gives one (dccomms_ros AcousticROSCommsDevice default)."""
 DEFAULT_POWER_W = 0.2818
 """Radiated power when neither the device nor a preset gives a level (the original's / Aqua-Sim's PT)."""
+
+# phy.acoustic (the physics, numpy) is imported by the functions of acoustic devices: a scene without one
+# never needs it (start-up time); `FixedBerLink` is still a name of this module
+
+
+def __getattr__(name: str) -> Any:
+    if name == "FixedBerLink":
+        from ..phy.acoustic import FixedBerLink  # noqa: PLC0415 - see above
+
+        return FixedBerLink
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def channel_params(spec: AcousticChannelSpec, spreading_k: float | None = None) -> AcousticChannelParams:
@@ -60,11 +71,15 @@ def prop_s_per_m(spec: AcousticChannelSpec) -> float:
 
 def default_bitrate(spec: AcousticDeviceSpec) -> float | None:
     """The bit rate a device gets when the scene gives none: its preset's (None without a preset)."""
+    from ..phy.acoustic import PRESETS  # noqa: PLC0415 - see above
+
     return PRESETS[spec.preset].bitrate_bps if spec.preset is not None else None
 
 
 def modem_params(dev: AcousticDeviceSpec, channel: AcousticChannelSpec, bitrate: float) -> AcousticModemParams:
     """The modem mode of a device spec on a channel, bit rate ``bitrate`` bit/s (see the module docstring)."""
+    from ..phy.acoustic import PRESETS, AcousticModemParams  # noqa: PLC0415 - see above
+
     base = PRESETS.get(dev.preset) if dev.preset is not None else None
     if base is None:
         base = AcousticModemParams(name="custom", carrier_khz=DEFAULT_CARRIER_KHZ,
@@ -91,6 +106,8 @@ def build_error_model(device: Device, channel: Channel) -> AcousticLink | FixedB
     """The loss model (``Modem.error``) of an acoustic device transmitting on ``channel``.
 
     Raises ValueError if the device or the channel is not acoustic."""
+    from ..phy.acoustic import AcousticLink, FixedBerLink  # noqa: PLC0415 - see above
+
     dev, ch = device.acoustic, channel.acoustic
     if dev is None:
         raise ValueError(f"device {device.dccomms_id!r} is not an AcousticCommsDevice")

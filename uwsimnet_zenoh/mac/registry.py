@@ -1,5 +1,6 @@
 """The MAC registry: names to classes.  It knows no protocol: built-ins name themselves with `@register`
-(mac/__init__ imports them), users give `module:Class` or an entry point of group `uwsimnet.mac`."""
+(mac/__init__ imports them, or names their modules with `defer`), users give `module:Class` or an entry
+point of group `uwsimnet.mac`."""
 
 from __future__ import annotations
 
@@ -10,18 +11,40 @@ from importlib.metadata import entry_points
 from .base import Mac
 
 _BUILTIN: dict[str, str] = {}
+_DEFERRED: frozenset[str] = frozenset()
+"""Modules of built-in MACs that register their names when imported, imported only when a name is not found
+(or all names are listed): a run imports the MACs it uses only (start-up time)."""
+_PENDING: list[str] = []
+"""Those of `_DEFERRED` not imported yet by the registry."""
+
+
+def defer(*modules: str) -> None:
+    """Built-in MAC modules to import when their names are first needed (mac/__init__)."""
+    global _DEFERRED
+    _DEFERRED |= frozenset(modules)
+    _PENDING.extend(modules)
+
+
+def _import_deferred() -> None:
+    while _PENDING:
+        importlib.import_module(_PENDING.pop(0))
 
 
 def register(*names: str) -> Callable[[type[Mac]], type[Mac]]:
     """Class decorator naming a built-in MAC (case-insensitive)."""
     def deco(cls: type[Mac]) -> type[Mac]:
+        # a deferred built-in registers as if mac/__init__ had imported it, before every other registration:
+        # it takes no name registered since
+        deferred = cls.__module__ in _DEFERRED
         for n in names:
-            _BUILTIN[n.lower()] = f"{cls.__module__}:{cls.__qualname__}"
+            if not (deferred and n.lower() in _BUILTIN):
+                _BUILTIN[n.lower()] = f"{cls.__module__}:{cls.__qualname__}"
         return cls
     return deco
 
 
 def builtin_names() -> list[str]:
+    _import_deferred()
     return sorted(_BUILTIN)
 
 
@@ -29,6 +52,9 @@ def resolve(name: str) -> type[Mac]:
     """A MAC class from a built-in name, an entry point of group `uwsimnet.mac`, or `module:Class`."""
     key = name.strip().lower()
     spec = _BUILTIN.get(key)
+    if spec is None and _PENDING:
+        _import_deferred()
+        spec = _BUILTIN.get(key)
     if spec is None:
         for ep in entry_points(group="uwsimnet.mac"):
             if ep.name.lower() == key:

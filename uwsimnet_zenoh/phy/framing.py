@@ -67,13 +67,20 @@ def _crc32_table() -> tuple[int, ...]:
     return tuple(out)
 
 
-_T16 = _crc16_table()
-_T32 = _crc32_table()
+_T16: tuple[int, ...] = ()
+_T32: tuple[int, ...] = ()
+"""The tables, made on the first CRC (every run imports this module, few compute a CRC: start-up time)."""
+
+
+def _tables() -> tuple[tuple[int, ...], tuple[int, ...]]:
+    global _T16, _T32
+    _T16, _T32 = _crc16_table(), _crc32_table()
+    return _T16, _T32
 
 
 def crc16(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
     """CRC-16/XMODEM as dccomms' Checksum::crc16 (check: crc16(b"123456789") == 0x31C3)."""
-    t = _T16
+    t = _T16 or _tables()[0]
     for b in data:
         crc = ((crc << 8) & 0xFF00) ^ t[(crc >> 8) ^ b]
     return crc
@@ -81,7 +88,7 @@ def crc16(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
 
 def crc32(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
     """dccomms' Checksum::crc32: poly 0x04C11DB7, MSB first, init 0, no final xor (check 0x89A1897F)."""
-    t = _T32
+    t = _T32 or _tables()[1]
     for b in data:
         crc = ((crc << 8) & 0xFFFFFFFF) ^ t[(crc >> 24) ^ b]
     return crc

@@ -25,11 +25,11 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from ..errors import UwsimnetError
+from .distros import DEFAULT_DISTRO as DEFAULT_DISTRO
+from .distros import DISTROS
 
 # == distros ==========================================================================================
 
-DISTROS = ("humble", "jazzy", "kilted", "lyrical", "rolling")
-DEFAULT_DISTRO = "jazzy"
 TYPE_HASH_NOT_SUPPORTED = "TypeHashNotSupported"
 """What Humble's rmw_zenoh puts where later distros put the RIHS01 hash."""
 

@@ -7,7 +7,6 @@ import re
 
 from ..mac import resolve
 from ..phy.expr import compile_expr
-from ..phy.framing import builder
 from .model import (
     Channel,
     Device,
@@ -233,6 +232,8 @@ class LegacyVocabulary(XmlReader):
                 name, name_el = self.packet_builder(e)
                 f.set(field, name, f"{tag}/className", name_el)
         if "tx_framing" in f.values and "max_frame_bytes" not in f.values:
+            from ..phy.framing import builder  # noqa: PLC0415 - scenes with a framing only (start-up time)
+
             # the largest frame is the framing's own (a VariableLength2BPacket of 2048 bytes is 2053 on air)
             f.values["max_frame_bytes"] = builder(f.values["tx_framing"]).max_frame + f.values.get("header_bytes", 0)
 
@@ -242,6 +243,8 @@ class LegacyVocabulary(XmlReader):
         k = self.kids(el, single=("className", "libPath"))
         name_el = self.need(k, "className")
         name = self.text(name_el)
+        from ..phy.framing import builder  # noqa: PLC0415 - scenes with a framing only (start-up time)
+
         try:
             framing = builder(name)
         except ValueError as e:

@@ -8,12 +8,16 @@ line it came from so that errors found later (unknown flow source, duplicate add
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from ..kernel.frame import BROADCAST
-from ..phy.acoustic import PRESETS, AcousticChannelParams
+
+if TYPE_CHECKING:
+    from ..phy.acoustic import AcousticChannelParams
+# phy.acoustic is imported by the acoustic models' methods: a scene without acoustic devices never needs it
+# (start-up time)
 
 
 class _Model(BaseModel):
@@ -36,6 +40,119 @@ class MacSpec(_Model):
     params: dict[str, str] = Field(default_factory=dict)
 
 
+# ---------------------------------------------------------------------------------------------------
+# Acoustic physics (AcousticCommsChannel / AcousticCommsDevice); docs/acoustic.md, docs/scene-format.md
+# Defined before the models holding them, so that every model is built once, by its class statement (no
+# failed first build and model_rebuild: start-up time)
+# ---------------------------------------------------------------------------------------------------
+Modulation = Literal["bpsk", "bfsk_coherent", "bfsk_noncoherent", "dpsk", "bpsk_rayleigh"]
+"""Keys of `phy.acoustic.MODULATIONS` (bit error rate formulas)."""
+
+
+class AcousticChannelSpec(_Model):
+    """The water of an `AcousticCommsChannel`, its ambient noise and its interference rule (SI units)."""
+
+    bandwidth_hz: float = Field(default=4096.0, gt=0)
+    """Receiver band, Hz, for devices that give neither a bandwidth nor a preset (legacy, default 4096)."""
+    temperature_c: float = Field(default=25.0, ge=-5, le=50)
+    salinity_ppt: float = Field(default=35.0, ge=0, le=50)
+    depth_m: float = Field(default=0.0, ge=0, le=12_000)
+    ph: float = Field(default=8.0, gt=0, lt=14)
+    spreading_k: float = Field(default=1.5, gt=0, le=4)
+    absorption: Literal["thorp", "francois-garrison"] | float = "thorp"
+    """Thorp (1967), Francois-Garrison (1982, uses T, S, depth, pH) or a constant in dB/km."""
+    shipping: float = Field(default=0.5, ge=0, le=1)
+    wind_mps: float = Field(default=0.0, ge=0, le=60)
+    noise_level_db: float | None = None
+    """Fixed in-band noise level, dB re 1 uPa (legacy noiseLvl; replaces the Wenz/Coates model)."""
+    noise_psd_db: float | None = None
+    """Fixed noise spectral density, dB re 1 uPa^2/Hz (replaces the Wenz/Coates model)."""
+    sound_speed_mps: float | None = Field(default=None, gt=0)
+    """Fixed sound speed, m/s, instead of Mackenzie (1981) at (temperature, salinity, depth)."""
+    interference: Literal["binary", "sinr"] = "binary"
+    """binary: any overlap loses both frames (as a CustomCommsChannel); sinr: capture by minimum SINR."""
+    sinr_threshold_db: float | None = None
+    """sinr mode: a frame that overlapped others survives iff its minimum SINR >= this (ns-3 UanPhyGen
+    default: 8 dB); None: PER from the SINR with the sender's modulation."""
+    capture: Literal["any", "first"] = "any"
+    """sinr mode: any = any frame whose SINR suffices is received; first = a receiver locks onto the first
+    frame whose SINR at its arrival exceeds acquire_threshold_db and misses every frame that arrives
+    while it receives that one (ns-3 UanPhyGen)."""
+    acquire_threshold_db: float = 10.0
+    """capture first: SINR at arrival needed to lock onto a frame, dB (ns-3 UanPhyGen RxThreshold)."""
+
+    def params(self, spreading_k: float | None = None) -> AcousticChannelParams:
+        """This water as physics (`spreading_k` overrides the channel's, for a device's K)."""
+        from ..phy.acoustic import AcousticChannelParams  # noqa: PLC0415 - see the imports
+
+        return AcousticChannelParams(
+            temperature_c=self.temperature_c, salinity_ppt=self.salinity_ppt, depth_m=self.depth_m, ph=self.ph,
+            spreading_k=self.spreading_k if spreading_k is None else spreading_k, absorption=self.absorption,
+            shipping=self.shipping, wind_mps=self.wind_mps, noise_psd_db=self.noise_psd_db,
+            noise_level_db=self.noise_level_db, sound_speed_mps=self.sound_speed_mps)
+
+    @field_validator("absorption")
+    @classmethod
+    def _absorption_nonnegative(cls, a: str | float) -> str | float:
+        if not isinstance(a, str) and (a < 0 or a != a or a == float("inf")):
+            raise ValueError(f"must be thorp, francois-garrison or a number >= 0 (dB/km), got {a:g}")
+        return a
+
+    @model_validator(mode="after")
+    def _threshold_needs_sinr(self) -> AcousticChannelSpec:
+        if self.sinr_threshold_db is not None and self.interference != "sinr":
+            raise ValueError("sinrThreshold needs interference sinr")
+        if self.capture != "any" and self.interference != "sinr":
+            raise ValueError("capture first needs interference sinr")
+        return self
+
+
+class AcousticDeviceSpec(_Model):
+    """The modem of an `AcousticCommsDevice`: a preset and/or explicit physics (SI units).
+
+    Anything not given comes from the preset, else from the defaults of the original's AcousticROSCommsDevice
+    (25 kHz, 0.2818 W) and the channel (bandwidth); the bit rate is `Device.bitrate`.
+    """
+
+    preset: str | None = None
+    """A key of `phy.acoustic.PRESETS` (e.g. "evologics-s2cr-18-34")."""
+    carrier_khz: float | None = Field(default=None, gt=0, le=1000)
+    bandwidth_hz: float | None = Field(default=None, gt=0)
+    source_level_db: float | None = Field(default=None, gt=0, lt=300)
+    """dB re 1 uPa @ 1 m."""
+    power_w: float | None = Field(default=None, gt=0)
+    """Radiated acoustic power, W: SL = 170.8 + 10 log10(P)."""
+    modulation: Modulation | None = None
+    bit_error_rate: float | None = Field(default=None, ge=0, le=1)
+    """Legacy bitErrorRate: a fixed BER replacing the physics one (interference still uses the physics)."""
+    spreading_k: float | None = Field(default=None, gt=0, le=4)
+    """Legacy K: spreading exponent of this transmitter's signal, instead of the channel's."""
+    directivity_index_db: float = 0.0
+    implementation_loss_db: float = 0.0
+    margin_db: float | None = None
+    """Receiver margin against noise, dB (None: the preset's, 0 without a preset)."""
+
+    @field_validator("preset")
+    @classmethod
+    def _known_preset(cls, name: str | None) -> str | None:
+        if name is None:
+            return name
+        from ..phy.acoustic import PRESETS  # noqa: PLC0415 - see the imports
+
+        if name not in PRESETS:
+            raise ValueError(f"unknown preset {name!r} (known: {', '.join(sorted(PRESETS))})")
+        return name
+
+    @model_validator(mode="after")
+    def _one_level(self) -> AcousticDeviceSpec:
+        if self.source_level_db is not None and self.power_w is not None:
+            raise ValueError("give either a source level or a power, not both")
+        return self
+
+
+# ---------------------------------------------------------------------------------------------------
+# The scene: channels, devices on vehicles, flows
+# ---------------------------------------------------------------------------------------------------
 class Channel(_Model):
     """`CustomCommsChannel`: propagation delay = min_prop_s + prop_s_per_m * distance."""
 
@@ -98,6 +215,8 @@ class Device(_Model):
                 spec = AcousticDeviceSpec.model_validate(data["acoustic"])
             except ValueError:
                 return data
+            from ..phy.acoustic import PRESETS  # noqa: PLC0415 - see the imports
+
             rate = PRESETS[spec.preset].bitrate_bps if spec.preset is not None else None
             if rate is not None:
                 data = {**data, "bitrate": rate}
@@ -196,111 +315,3 @@ class Scene(_Model):
         ends = [f.stop for f in self.flows if f.stop is not None]
         ends += [v.trajectory[-1].t for v in self.vehicles if v.trajectory]
         return max(ends, default=60.0) + 1.0
-
-
-# ---------------------------------------------------------------------------------------------------
-# Acoustic physics (AcousticCommsChannel / AcousticCommsDevice); docs/acoustic.md, docs/scene-format.md
-# ---------------------------------------------------------------------------------------------------
-Modulation = Literal["bpsk", "bfsk_coherent", "bfsk_noncoherent", "dpsk", "bpsk_rayleigh"]
-"""Keys of `phy.acoustic.MODULATIONS` (bit error rate formulas)."""
-
-
-class AcousticChannelSpec(_Model):
-    """The water of an `AcousticCommsChannel`, its ambient noise and its interference rule (SI units)."""
-
-    bandwidth_hz: float = Field(default=4096.0, gt=0)
-    """Receiver band, Hz, for devices that give neither a bandwidth nor a preset (legacy, default 4096)."""
-    temperature_c: float = Field(default=25.0, ge=-5, le=50)
-    salinity_ppt: float = Field(default=35.0, ge=0, le=50)
-    depth_m: float = Field(default=0.0, ge=0, le=12_000)
-    ph: float = Field(default=8.0, gt=0, lt=14)
-    spreading_k: float = Field(default=1.5, gt=0, le=4)
-    absorption: Literal["thorp", "francois-garrison"] | float = "thorp"
-    """Thorp (1967), Francois-Garrison (1982, uses T, S, depth, pH) or a constant in dB/km."""
-    shipping: float = Field(default=0.5, ge=0, le=1)
-    wind_mps: float = Field(default=0.0, ge=0, le=60)
-    noise_level_db: float | None = None
-    """Fixed in-band noise level, dB re 1 uPa (legacy noiseLvl; replaces the Wenz/Coates model)."""
-    noise_psd_db: float | None = None
-    """Fixed noise spectral density, dB re 1 uPa^2/Hz (replaces the Wenz/Coates model)."""
-    sound_speed_mps: float | None = Field(default=None, gt=0)
-    """Fixed sound speed, m/s, instead of Mackenzie (1981) at (temperature, salinity, depth)."""
-    interference: Literal["binary", "sinr"] = "binary"
-    """binary: any overlap loses both frames (as a CustomCommsChannel); sinr: capture by minimum SINR."""
-    sinr_threshold_db: float | None = None
-    """sinr mode: a frame that overlapped others survives iff its minimum SINR >= this (ns-3 UanPhyGen
-    default: 8 dB); None: PER from the SINR with the sender's modulation."""
-    capture: Literal["any", "first"] = "any"
-    """sinr mode: any = any frame whose SINR suffices is received; first = a receiver locks onto the first
-    frame whose SINR at its arrival exceeds acquire_threshold_db and misses every frame that arrives
-    while it receives that one (ns-3 UanPhyGen)."""
-    acquire_threshold_db: float = 10.0
-    """capture first: SINR at arrival needed to lock onto a frame, dB (ns-3 UanPhyGen RxThreshold)."""
-
-    def params(self, spreading_k: float | None = None) -> AcousticChannelParams:
-        """This water as physics (`spreading_k` overrides the channel's, for a device's K)."""
-        return AcousticChannelParams(
-            temperature_c=self.temperature_c, salinity_ppt=self.salinity_ppt, depth_m=self.depth_m, ph=self.ph,
-            spreading_k=self.spreading_k if spreading_k is None else spreading_k, absorption=self.absorption,
-            shipping=self.shipping, wind_mps=self.wind_mps, noise_psd_db=self.noise_psd_db,
-            noise_level_db=self.noise_level_db, sound_speed_mps=self.sound_speed_mps)
-
-    @field_validator("absorption")
-    @classmethod
-    def _absorption_nonnegative(cls, a: str | float) -> str | float:
-        if not isinstance(a, str) and (a < 0 or a != a or a == float("inf")):
-            raise ValueError(f"must be thorp, francois-garrison or a number >= 0 (dB/km), got {a:g}")
-        return a
-
-    @model_validator(mode="after")
-    def _threshold_needs_sinr(self) -> AcousticChannelSpec:
-        if self.sinr_threshold_db is not None and self.interference != "sinr":
-            raise ValueError("sinrThreshold needs interference sinr")
-        if self.capture != "any" and self.interference != "sinr":
-            raise ValueError("capture first needs interference sinr")
-        return self
-
-
-class AcousticDeviceSpec(_Model):
-    """The modem of an `AcousticCommsDevice`: a preset and/or explicit physics (SI units).
-
-    Anything not given comes from the preset, else from the defaults of the original's AcousticROSCommsDevice
-    (25 kHz, 0.2818 W) and the channel (bandwidth); the bit rate is `Device.bitrate`.
-    """
-
-    preset: str | None = None
-    """A key of `phy.acoustic.PRESETS` (e.g. "evologics-s2cr-18-34")."""
-    carrier_khz: float | None = Field(default=None, gt=0, le=1000)
-    bandwidth_hz: float | None = Field(default=None, gt=0)
-    source_level_db: float | None = Field(default=None, gt=0, lt=300)
-    """dB re 1 uPa @ 1 m."""
-    power_w: float | None = Field(default=None, gt=0)
-    """Radiated acoustic power, W: SL = 170.8 + 10 log10(P)."""
-    modulation: Modulation | None = None
-    bit_error_rate: float | None = Field(default=None, ge=0, le=1)
-    """Legacy bitErrorRate: a fixed BER replacing the physics one (interference still uses the physics)."""
-    spreading_k: float | None = Field(default=None, gt=0, le=4)
-    """Legacy K: spreading exponent of this transmitter's signal, instead of the channel's."""
-    directivity_index_db: float = 0.0
-    implementation_loss_db: float = 0.0
-    margin_db: float | None = None
-    """Receiver margin against noise, dB (None: the preset's, 0 without a preset)."""
-
-    @field_validator("preset")
-    @classmethod
-    def _known_preset(cls, name: str | None) -> str | None:
-        if name is not None and name not in PRESETS:
-            raise ValueError(f"unknown preset {name!r} (known: {', '.join(sorted(PRESETS))})")
-        return name
-
-    @model_validator(mode="after")
-    def _one_level(self) -> AcousticDeviceSpec:
-        if self.source_level_db is not None and self.power_w is not None:
-            raise ValueError("give either a source level or a power, not both")
-        return self
-
-
-Channel.model_rebuild()
-Device.model_rebuild()
-Vehicle.model_rebuild()
-Scene.model_rebuild()

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-from ..phy.framing import builder
 from .model import (
     BROADCAST,
     Device,
@@ -106,7 +105,11 @@ class NativeVocabulary(XmlReader):
                                       f" (line {self.disabled[flow.src]})")
             self.fail(els["src"], f"src: no device with dccommsId {flow.src!r}")
         dev = devices[flow.src][0]
-        framing = builder(dev.tx_framing) if dev.tx_framing else None
+        framing = None
+        if dev.tx_framing:
+            from ..phy.framing import builder  # noqa: PLC0415 - scenes with a framing only (start-up time)
+
+            framing = builder(dev.tx_framing)
         if framing is not None and (why := framing.check_payload(flow.size)) is not None:
             self.fail(els["size"], f"size: {why} of device {dev.dccomms_id!r}")
         framed = framing.frame_size(flow.size) if framing is not None else flow.size

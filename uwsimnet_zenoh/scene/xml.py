@@ -3,7 +3,6 @@ numbers and units.  The vocabularies (legacy.py, native.py, acoustic.py) are mix
 
 from __future__ import annotations
 
-import difflib
 import math
 import re
 import sys
@@ -240,6 +239,8 @@ class XmlReader:
         if tag.startswith("{"):
             local = etree.QName(child).localname
             tag = f"{child.prefix}:{local}" if child.prefix else local
+        import difflib  # noqa: PLC0415 - an error only (start-up time)
+
         lower = {k.lower(): k for k in known}
         close = difflib.get_close_matches(tag.lower(), list(lower), n=1, cutoff=0.8)
         hint = f" (did you mean <{lower[close[0]]}>?)" if close else ""

@@ -3,3 +3,7 @@
 state.py is sans-IO (the document and its live updates), live.py the Zenoh client, server.py the aiohttp
 server; static/ holds the page (plain HTML, CSS and JavaScript: no build step, nothing from the network).
 """
+
+DEFAULT_PORT = 8765
+"""Where the page is served unless --port / --view-port says otherwise (here, so that the command line of
+`uwsimnet run` names it without importing the page's modules)."""
