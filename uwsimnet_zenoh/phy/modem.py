@@ -16,7 +16,6 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 from ..kernel.frame import BROADCAST, Frame
-from .framing import Framing, builder
 
 if TYPE_CHECKING:
     from ..kernel.scheduler import Event, Scheduler
@@ -95,7 +94,10 @@ class Modem:
         self.bitrate = cfg.bitrate
         self.header_bytes = cfg.header_bytes
         name = getattr(cfg, "tx_framing", None)
-        self.framing: Framing | None = builder(name) if name else None
+        self.framing: Any = None        # a phy.framing.Framing (imported by the few devices that frame)
+        if name:
+            from .framing import builder
+            self.framing = builder(name)
         """The dccomms framing of what this modem sends: its framed size goes on air (dccomms_ros puts
         `GetPacketSize()` in the NetsimHeader the channel times frames with)."""
         self.min_distance = cfg.min_distance

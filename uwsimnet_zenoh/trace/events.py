@@ -9,7 +9,6 @@ from __future__ import annotations
 import importlib
 import io
 import json
-import logging
 import math
 from typing import IO, Any
 
@@ -23,7 +22,6 @@ __all__ = ["ROW_FIELDS", "ArrowSink", "Batch", "BatchConsumer", "CallbackSink", 
            "Record", "Row", "Tracer", "finite", "load_tracing_class", "record", "rounded"]
 
 _EVENTS = ("enq", "tx", "rx", "drop")
-log = logging.getLogger("uwsimnet.trace")
 
 
 
@@ -280,8 +278,11 @@ class CallbackSink:
                 self._handlers = {}
                 self.failed = e
                 self.failed_at = rec.get("t")
-                log.error("tracing class %s raised %s in on_%s at t=%s; it is disabled for the rest of the"
-                          " run", self.name, type(e).__name__, rec["ev"], rec.get("t"), exc_info=e)
+                import logging  # noqa: PLC0415 - only here: nothing else on a run's path logs
+
+                logging.getLogger("uwsimnet.trace").error(
+                    "tracing class %s raised %s in on_%s at t=%s; it is disabled for the rest of the run",
+                    self.name, type(e).__name__, rec["ev"], rec.get("t"), exc_info=e)
 
 
 def load_tracing_class(spec: str) -> Any:
