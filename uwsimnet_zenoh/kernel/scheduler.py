@@ -1,4 +1,4 @@
-"""A small discrete-event core (SimPy-sized): a heap of events ordered by (time, seq), a callback and its args.
+"""A small discrete-event core (SimPy-sized): a heap of (time, seq, callback, args).
 
 The same scheduler runs under the virtual clock (jump from event to event) and the realtime clock
 (sleep until the next event); it never looks at the wall clock itself.  Ties break by insertion order,
@@ -15,18 +15,13 @@ from typing import Any
 class Event:
     """A handle for a scheduled call; `cancel()` makes it a no-op (lazy deletion keeps the heap simple)."""
 
-    __slots__ = ("t", "seq", "fn", "args", "cancelled")
+    __slots__ = ("t", "fn", "args", "cancelled")
 
-    def __init__(self, t: float, fn: Callable[..., Any], args: tuple, seq: int = 0) -> None:
+    def __init__(self, t: float, fn: Callable[..., Any], args: tuple) -> None:
         self.t = t
-        self.seq = seq              # the tie-break: insertion order
         self.fn = fn
         self.args = args
         self.cancelled = False
-
-    def __lt__(self, other: Event) -> bool:
-        """The heap's order, (t, seq): compiled, one native comparison instead of a tuple's three generic ones."""
-        return self.t < other.t or (self.t == other.t and self.seq < other.seq)
 
     def cancel(self) -> None:
         self.cancelled = True
@@ -44,7 +39,7 @@ class _Interrupt(Event):
     __slots__ = ()
 
     def __init__(self, t: float) -> None:
-        super().__init__(t, _never, (), -1)
+        super().__init__(t, _never, ())
         self.cancelled = True
 
 
@@ -61,7 +56,7 @@ def _skip(ev: Event) -> None:
 class Scheduler:
     def __init__(self) -> None:
         self.now = 0.0
-        self._heap: list[Event] = []
+        self._heap: list[tuple[float, int, Event]] = []
         self._seq = 0
         self.events_run = 0
 
@@ -69,9 +64,9 @@ class Scheduler:
         """Schedule `fn(*args)` at absolute time `t` (never in the past)."""
         if t < self.now:
             t = self.now
+        ev = Event(t, fn, args)
         self._seq += 1
-        ev = Event(t, fn, args, self._seq)
-        heapq.heappush(self._heap, ev)
+        heapq.heappush(self._heap, (t, self._seq, ev))
         return ev
 
     def after(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event:
@@ -80,25 +75,25 @@ class Scheduler:
     def next_time(self) -> float | None:
         """Time of the next live event, dropping cancelled ones from the top."""
         heap = self._heap
-        while heap and heap[0].cancelled:
-            _skip(heap[0])
+        while heap and heap[0][2].cancelled:
+            _skip(heap[0][2])
             heapq.heappop(heap)
-        return heap[0].t if heap else None
+        return heap[0][0] if heap else None
 
     def step(self) -> None:
         """Run the next event (the caller has checked there is one)."""
-        ev = heapq.heappop(self._heap)
+        t, _, ev = heapq.heappop(self._heap)
         if ev.cancelled:
             _skip(ev)
             return
-        self.now = ev.t
+        self.now = t
         self.events_run += 1
         ev.fn(*ev.args)
 
     def interrupt(self) -> None:
         """Make `run` raise `Interrupted` before the next event (safe from a signal handler: one heap
         push, ordered before every event due at `now`, with a sequence number no `at` uses)."""
-        heapq.heappush(self._heap, _Interrupt(self.now))
+        heapq.heappush(self._heap, (self.now, -1, _Interrupt(self.now)))
 
     def run(self, until: float) -> None:
         """Virtual time: run every event with t <= until, then stand at `until` (see `interrupt`)."""
@@ -106,12 +101,12 @@ class Scheduler:
         pop = heapq.heappop
         n = 0
         try:
-            while heap and heap[0].t <= until:
-                ev = pop(heap)
+            while heap and heap[0][0] <= until:
+                t, _, ev = pop(heap)
                 if ev.cancelled:
                     _skip(ev)
                     continue
-                self.now = ev.t
+                self.now = t
                 n += 1
                 ev.fn(*ev.args)
         except Interrupted:
@@ -126,4 +121,4 @@ class Scheduler:
 
     def pending(self) -> list[Event]:
         """The live events still scheduled, in no particular order (for ending a run: what is held)."""
-        return [ev for ev in self._heap if not isinstance(ev, _Interrupt) and not ev.cancelled]
+        return [ev for _, _, ev in self._heap if not isinstance(ev, _Interrupt) and not ev.cancelled]
