@@ -10,7 +10,7 @@ import pytest
 from conftest import Recorded, device, scene, vehicle
 
 from uwsimnet_zenoh.engine.network import Network
-from uwsimnet_zenoh.kernel.scheduler import Scheduler
+from uwsimnet_zenoh.kernel.scheduler import Interrupted, Scheduler
 from uwsimnet_zenoh.mobility.trajectory import PoseTable, Trajectory
 
 
@@ -32,6 +32,31 @@ def test_scheduler_never_goes_back_in_time():
     s.at(1.0, lambda: times.append(s.now))
     s.run(6)
     assert times == [5.0]
+
+
+def test_an_interrupt_stops_the_run_between_two_events_once():
+    s = Scheduler()
+    seen = []
+    s.at(1.0, seen.append, "a")
+    s.at(2.0, s.interrupt)                  # as a signal handler would, during an event
+    s.at(2.0, seen.append, "b")
+    s.at(3.0, seen.append, "c")
+    with pytest.raises(Interrupted):
+        s.run(10)
+    assert seen == ["a"] and s.now == 2.0 and s.events_run == 2      # time stays where the run stopped
+    s.run(10)                               # taken once: a later run goes on
+    assert seen == ["a", "b", "c"] and s.now == 10
+
+
+def test_an_interrupt_after_the_last_event_leaves_time_there():
+    s = Scheduler()
+    s.at(1.0, s.interrupt)
+    with pytest.raises(Interrupted):
+        s.run(5)
+    assert s.now == 1.0
+    s.interrupt()
+    with pytest.raises(Interrupted):
+        s.next_time()
 
 
 def test_trajectory_is_piecewise_linear_and_holds_at_the_ends():

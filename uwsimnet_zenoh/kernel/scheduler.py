@@ -1,4 +1,5 @@
-"""A small discrete-event core (SimPy-sized): a heap of (time, seq, callback, args).
+"""A small discrete-event core (SimPy-sized): a heap of events ordered by (time, seq), each a callback and
+its args.
 
 The same scheduler runs under the virtual clock (jump from event to event) and the realtime clock
 (sleep until the next event); it never looks at the wall clock itself.  Ties break by insertion order,
@@ -15,13 +16,19 @@ from typing import Any
 class Event:
     """A handle for a scheduled call; `cancel()` makes it a no-op (lazy deletion keeps the heap simple)."""
 
-    __slots__ = ("t", "fn", "args", "cancelled")
+    __slots__ = ("t", "seq", "fn", "args", "cancelled")
 
-    def __init__(self, t: float, fn: Callable[..., Any], args: tuple) -> None:
+    def __init__(self, t: float, seq: int, fn: Callable[..., Any], args: tuple) -> None:
         self.t = t
+        self.seq = seq              # the tie-break: insertion order
         self.fn = fn
         self.args = args
         self.cancelled = False
+
+    def __lt__(self, other: Event) -> bool:
+        """The heap's order, (t, seq): compiled, one native comparison instead of a tuple's three generic
+        ones, and no tuple per event."""
+        return self.t < other.t or (self.t == other.t and self.seq < other.seq)
 
     def cancel(self) -> None:
         self.cancelled = True
@@ -31,69 +38,57 @@ class Interrupted(Exception):  # noqa: N818 - it is what happened, not an error
     """Raised out of `Scheduler.run` when `interrupt()` was called: between two events, never inside one."""
 
 
-class _Interrupt(Event):
-    """The event `interrupt()` pushes: born cancelled, so the loops that skip cancelled events look at it
-    only on that rare path (`_skip`), where it raises Interrupted: an interrupt costs the other events
-    nothing and time never goes back, even when the signal came between a pop and the event's `now`."""
-
-    __slots__ = ()
-
-    def __init__(self, t: float) -> None:
-        super().__init__(t, _never, ())
-        self.cancelled = True
-
-
-def _never() -> None:
-    raise Interrupted
-
-
-def _skip(ev: Event) -> None:
-    """A cancelled event was popped or found on top: an interrupt raises, any other is dropped."""
-    if type(ev) is _Interrupt:
-        raise Interrupted
-
-
 class Scheduler:
     def __init__(self) -> None:
         self.now = 0.0
-        self._heap: list[tuple[float, int, Event]] = []
+        self._heap: list[Event] = []
         self._seq = 0
         self.events_run = 0
+        self.interrupted = False
 
     def at(self, t: float, fn: Callable[..., Any], *args: Any) -> Event:
         """Schedule `fn(*args)` at absolute time `t` (never in the past)."""
         if t < self.now:
             t = self.now
-        ev = Event(t, fn, args)
         self._seq += 1
-        heapq.heappush(self._heap, (t, self._seq, ev))
+        ev = Event(t, self._seq, fn, args)
+        heapq.heappush(self._heap, ev)
         return ev
 
     def after(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event:
         return self.at(self.now + delay, fn, *args)
 
     def next_time(self) -> float | None:
-        """Time of the next live event, dropping cancelled ones from the top."""
+        """Time of the next live event, dropping cancelled ones from the top (raises `Interrupted` after
+        `interrupt()`)."""
+        if self.interrupted:
+            raise self._stop()
         heap = self._heap
-        while heap and heap[0][2].cancelled:
-            _skip(heap[0][2])
+        while heap and heap[0].cancelled:
             heapq.heappop(heap)
-        return heap[0][0] if heap else None
+        return heap[0].t if heap else None
 
     def step(self) -> None:
         """Run the next event (the caller has checked there is one)."""
-        t, _, ev = heapq.heappop(self._heap)
+        if self.interrupted:
+            raise self._stop()
+        ev = heapq.heappop(self._heap)
         if ev.cancelled:
-            _skip(ev)
             return
-        self.now = t
+        self.now = ev.t
         self.events_run += 1
         ev.fn(*ev.args)
 
     def interrupt(self) -> None:
-        """Make `run` raise `Interrupted` before the next event (safe from a signal handler: one heap
-        push, ordered before every event due at `now`, with a sequence number no `at` uses)."""
-        heapq.heappush(self._heap, (self.now, -1, _Interrupt(self.now)))
+        """Make `run` raise `Interrupted` before the next event.  Safe from a signal handler, which Python
+        may run in the middle of a heap operation (inside `Event.__lt__` when it is not compiled): it only
+        sets a flag, which the loops read between two events."""
+        self.interrupted = True
+
+    def _stop(self) -> Interrupted:
+        """The interrupt is taken: once (a later `run` goes on)."""
+        self.interrupted = False
+        return Interrupted()
 
     def run(self, until: float) -> None:
         """Virtual time: run every event with t <= until, then stand at `until` (see `interrupt`)."""
@@ -101,18 +96,19 @@ class Scheduler:
         pop = heapq.heappop
         n = 0
         try:
-            while heap and heap[0][0] <= until:
-                t, _, ev = pop(heap)
+            while heap and heap[0].t <= until:
+                if self.interrupted:
+                    raise self._stop()
+                ev = pop(heap)
                 if ev.cancelled:
-                    _skip(ev)
                     continue
-                self.now = t
+                self.now = ev.t
                 n += 1
                 ev.fn(*ev.args)
-        except Interrupted:
+        finally:
             self.events_run += n
-            raise
-        self.events_run += n
+        if self.interrupted:        # the signal came with the last event: time stays where it was
+            raise self._stop()
         self.now = max(self.now, until)
 
     def clear(self) -> None:
@@ -121,4 +117,4 @@ class Scheduler:
 
     def pending(self) -> list[Event]:
         """The live events still scheduled, in no particular order (for ending a run: what is held)."""
-        return [ev for _, _, ev in self._heap if not isinstance(ev, _Interrupt) and not ev.cancelled]
+        return [ev for ev in self._heap if not ev.cancelled]
