@@ -4,8 +4,8 @@ that differ only in the MAC see exactly the same offered traffic (common random 
 
 from __future__ import annotations
 
+import math
 import random
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -23,26 +23,26 @@ class FlowSource:
         self._dst, self._size, self._name = spec.dst, spec.size, spec.name     # read per frame
         self._periodic = spec.arrival == "periodic"
         self._rng = random.Random(seed)
-        self._gap: Callable[[], float]
-        if spec.arrival == "poisson":
-            rate = 1.0 / spec.interval
-            self._gap = lambda: self._rng.expovariate(rate)
-            first = spec.start + self._gap()
-        else:
-            self._gap = lambda: spec.interval
-            first = spec.start
+        self._rate = 1.0 / spec.interval if spec.arrival == "poisson" else 0.0
+        first = spec.start + self._gap() if self._rate else spec.start
         self.sent = 0
         if first < self.stop:
             sched.at(first, self._fire)
+
+    def _gap(self) -> float:
+        """The next Poisson gap: `random.expovariate(rate)`'s own formula (the same doubles), computed
+        here rather than through the stdlib's Python method."""
+        return -math.log(1.0 - self._rng.random()) / self._rate
 
     def _fire(self) -> None:
         if self.sched.now >= self.stop:      # stopped early (its modem was removed)
             return
         self.modem.send(self._dst, self._size, flow=self._name)
         self.sent += 1
-        nxt = self.sched.now + self._gap()
         if self._periodic:                      # no drift from repeated float additions
             spec = self.spec
             nxt = spec.start + self.sent * spec.interval
+        else:                                   # poisson
+            nxt = self.sched.now + self._gap()
         if nxt < self.stop:
             self.sched.at(nxt, self._fire)
