@@ -63,11 +63,8 @@ class PoseTable:
         Zenoh broker keeps the newest sample per vehicle and applies it only when the geometry is needed)
         hooks in here.  It must only call `update`."""
         self.version = 0
+        self.moving = False
         """Bumped on every change; with `moving` False, positions are constant until it changes."""
-
-    @property
-    def moving(self) -> bool:
-        return bool(self._scripted or self._external)
 
     def set_static(self, name: str, p: Sequence[float]) -> None:
         i = self.index[name]
@@ -77,6 +74,7 @@ class PoseTable:
     def _changed(self) -> None:
         self._cache_t = float("nan")
         self.version += 1
+        self.moving = bool(self._scripted or self._external)
 
     def set_trajectory(self, name: str, traj: Trajectory) -> None:
         self._scripted[self.index[name]] = traj
