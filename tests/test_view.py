@@ -298,7 +298,10 @@ def test_page_replays_a_trace(browser, replay_trace, tmp_path):
         browser.click("#slider")
         t = browser.wait("return uwsimnetView.T > 0 && uwsimnetView.T")
         assert 13.0 < t < 17.0
-        assert browser.wait("return document.getElementById('clock').textContent") == f"t = {t:.3f} s"
+        # the clock is redrawn on the next animation frame after T moves: wait for it to say T
+        want_clock = f"t = {t:.3f} s"
+        assert browser.wait(f"const c = document.getElementById('clock').textContent; return c === '{want_clock}' && c",
+                            what=f"the clock saying {want_clock!r}") == want_clock
         # a data frame of the trace: on air just after its tx, then its outcome as in the trace
         recs = [r for r in map(json.loads, replay_trace.read_text().splitlines()) if r["ev"] == "tx"]
         tx = next(r for r in recs if r["kind"] == "data" and r["t"] > 10 and r["dev"] == "leader-rf")
