@@ -186,3 +186,30 @@ def test_run_parser_alone_parses_as_the_whole() -> None:
 
     argv = ["run", "x.xml", "--trace", "t.jsonl", "--seed", "3", "--connect", "tcp/h:1"]
     assert vars(build_parser("run").parse_args(argv)) == vars(build_parser().parse_args(argv))
+
+
+def test_the_console_script_freezes_what_the_command_made_and_keeps_its_exit_code(monkeypatch):
+    """`uwsimnet` is `cli.command`: main's exit code, then gc.freeze() (the process's exit would otherwise
+    collect and free every object of a run one by one)."""
+    import gc
+    import tomllib
+
+    import uwsimnet_zenoh.cli as cli
+
+    scripts = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["uwsimnet"] == "uwsimnet_zenoh.cli:command"
+    made = []
+
+    def fake_main():
+        a: list = []
+        a.append(a)             # a reference cycle the command leaves behind
+        made.append(a)
+        return 3
+
+    monkeypatch.setattr(cli, "main", fake_main)
+    before = gc.get_freeze_count()
+    try:
+        assert cli.command() == 3
+        assert gc.get_freeze_count() > before
+    finally:
+        gc.unfreeze()           # this test process goes on

@@ -297,7 +297,14 @@ class Channel:
         for g in self.log:
             if g is not tx:
                 gd = g.dl
-                if j < len(gd):
+                if isinstance(gd, list):    # typed, as in `busy`
+                    glist: list[float] = gd
+                    if j < len(glist):
+                        ga = glist[j] + g.t0
+                        if ga < e and a < ga + g.dur - TOUCH:
+                            col = True
+                            break
+                elif j < len(gd):
                     ga = gd[j] + g.t0
                     if ga < e and a < ga + g.dur - TOUCH:
                         col = True
@@ -408,7 +415,13 @@ class Channel:
         t = self.sched.now
         for g in self.log:
             d = g.dl
-            if slot < len(d):
+            if isinstance(d, list):     # a small channel: typed, so compiled it adds doubles (no float objects)
+                dlist: list[float] = d
+                if slot < len(dlist):
+                    a = dlist[slot] + g.t0
+                    if a <= t < a + g.dur - TOUCH and g.own != slot:
+                        return True
+            elif slot < len(d):
                 a = d[slot] + g.t0
                 if a <= t < a + g.dur - TOUCH and g.own != slot:
                     return True
