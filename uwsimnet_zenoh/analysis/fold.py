@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from typing import Any, Final
 
+from mypy_extensions import mypyc_attr
+
 from ..kernel.frame import BROADCAST
 from .read import RX_REASONS, TX_REASONS
 
@@ -21,6 +23,7 @@ _TX_REASONS: Final = TX_REASONS
 _RX_REASONS: Final = RX_REASONS
 
 
+@mypyc_attr(acyclic=True)     # holds no reference back: not tracked by the cyclic GC (compiled)
 class Receiver:
     """One receiver's outcomes of a frame with several."""
 
@@ -35,6 +38,7 @@ class Receiver:
         return [self.dev, self.n_rx, self.n_drop, self.reason, self.at]
 
 
+@mypyc_attr(acyclic=True)     # holds no reference back: not tracked by the cyclic GC (compiled)
 class FrameState:
     """One data frame, (transmitter dccommsId, seq): its events counted.  `r_*` is its receiver while it has
     one (unicast: at most one); from a second receiver on, `multi` holds them all in order."""
@@ -84,6 +88,7 @@ class FrameState:
         return [Receiver(self.r_dev, self.r_nrx, self.r_ndrop, self.r_reason, self.r_at)]
 
 
+@mypyc_attr(acyclic=True)     # holds no reference back: not tracked by the cyclic GC (compiled)
 class FlowState:
     """One flow's counters (analysis.metrics.FlowMetrics' fields that the events make)."""
 
@@ -115,6 +120,7 @@ class FlowState:
         self.in_flight = 0
 
 
+@mypyc_attr(acyclic=True)     # holds no reference back: not tracked by the cyclic GC (compiled)
 class ChannelState:
     def __init__(self) -> None:
         self.enqueued = 0
