@@ -14,9 +14,9 @@ the same machine:
 - `uwsimnet run SCENE` (online summary, no trace) and `uwsimnet run SCENE --trace t.jsonl`.
 
 Every figure is a whole process (start-up, imports and scene loading included) timed with wait4, which also
-gives its peak RSS (`--repeat R`: the fastest of R runs of each process); ns-3's own Simulator::Run time is
-shown too.  frames = transmissions (tx), counted by
-the bare engine (the runs are deterministic: the same frames in all three of ours).
+gives its peak RSS (`--repeat R`: the fastest of R runs of each process, the processes of one N taken in
+turn); ns-3's own Simulator::Run time is shown too.  frames = transmissions (tx), counted by the bare engine
+(the runs are deterministic: the same frames in all three of ours).
 
     python -m venv /tmp/ns3venv && /tmp/ns3venv/bin/pip install --no-deps ns3    # outside the repo (headers, libs)
     .venv/bin/python bench/bench_user_path.py --ns3 /tmp/ns3venv/lib/python3.11/site-packages/ns3
@@ -99,30 +99,44 @@ print(net.tracer.count("tx"), net.modems["sink"].counters["rx"], time.perf_count
 """
 
 
-def best(cmd: list[str], repeat: int) -> tuple[float, int, str]:
-    """`timed(cmd)` of the fastest of `repeat` runs (the same output every time: the runs are deterministic)."""
-    return min((timed(cmd) for _ in range(repeat)), key=lambda r: r[0])
+def bests(cmds: list[list[str]], repeat: int) -> list[tuple[float, int, str]]:
+    """`timed(cmd)` of the fastest of `repeat` runs of each command, the commands taken in turn (one run of
+    each, then the next round): the VM's speed drifts over minutes, and interleaved runs see the same drift,
+    so their ratios hold better than those of runs timed one command after the other.  (The same output
+    every time: the runs are deterministic.)"""
+    out: list[tuple[float, int, str] | None] = [None] * len(cmds)
+    for _ in range(repeat):
+        for i, cmd in enumerate(cmds):
+            r = timed(cmd)
+            if out[i] is None or r[0] < out[i][0]:  # type: ignore[index]
+                out[i] = r
+    return out  # type: ignore[return-value]
 
 
 def bench_n(n: int, frames: int, binary: Path | None, modes: list[str], tmp: Path, repeat: int = 1) -> list[dict]:
     duration = round(frames / (1 / FRAME_TIME), 3)     # G = 1: one frame time of offered traffic per T
     rows = []
-    ns3 = None
+    cmds: list[list[str]] = []
     if binary is not None:
-        wall, rss, text = best([str(binary), str(n), "1", str(duration), "1"], repeat)
-        _, sent, got, run_s = text.split()
-        ns3 = {"wall": wall, "rss": rss, "frames": int(sent), "run_s": float(run_s), "rx": int(got)}
+        cmds.append([str(binary), str(n), "1", str(duration), "1"])
     for mode in modes:
         path = tmp / f"aloha-{mode}-{n}.xml"
         path.write_text(scene_xml(n, duration, half=mode == "half"))
-        bare_wall, bare_rss, text = best([sys.executable, "-c", BARE, str(path)], repeat)
-        sent, got, bare_run = text.split()
-        run_wall, run_rss, _ = best([*UWSIMNET, "run", str(path)], repeat)
-        tr_wall, tr_rss, _ = best([*UWSIMNET, "run", str(path), "--trace", str(tmp / "t.jsonl")], repeat)
-        rows.append({"n": n, "mode": mode, "sim_s": duration, "frames": int(sent), "rx": int(got),
+        cmds += [[sys.executable, "-c", BARE, str(path)], [*UWSIMNET, "run", str(path)],
+                 [*UWSIMNET, "run", str(path), "--trace", str(tmp / f"t-{mode}.jsonl")]]
+    got = bests(cmds, repeat)
+    ns3 = None
+    if binary is not None:
+        wall, rss, text = got.pop(0)
+        _, sent, rx, run_s = text.split()
+        ns3 = {"wall": wall, "rss": rss, "frames": int(sent), "run_s": float(run_s), "rx": int(rx)}
+    for k, mode in enumerate(modes):
+        (bare_wall, bare_rss, text), (run_wall, run_rss, _), (tr_wall, tr_rss, _) = got[3 * k:3 * k + 3]
+        sent, rx, bare_run = text.split()
+        rows.append({"n": n, "mode": mode, "sim_s": duration, "frames": int(sent), "rx": int(rx),
                      "bare": bare_wall, "bare_run": float(bare_run), "bare_rss": bare_rss,
                      "run": run_wall, "run_rss": run_rss, "trace": tr_wall, "trace_rss": tr_rss,
-                     "trace_bytes": (tmp / "t.jsonl").stat().st_size, "ns3": ns3})
+                     "trace_bytes": (tmp / f"t-{mode}.jsonl").stat().st_size, "ns3": ns3})
     return rows
 
 

@@ -88,6 +88,17 @@ class FrameState:
         return [Receiver(self.r_dev, self.r_nrx, self.r_ndrop, self.r_reason, self.r_at)]
 
 
+@mypyc_attr(acyclic=True)
+class Sender:
+    """One transmitter (dccommsId): its data frames by seq and the highest seq it transmitted.  The fold
+    finds it from a channel's source address (an int key) rather than by name, once per event."""
+
+    def __init__(self, dev: str) -> None:
+        self.dev = dev
+        self.frames: dict[int, FrameState] = {}
+        self.max_seq = -1
+
+
 @mypyc_attr(acyclic=True)     # holds no reference back: not tracked by the cyclic GC (compiled)
 class FlowState:
     """One flow's counters (analysis.metrics.FlowMetrics' fields that the events make)."""
@@ -140,12 +151,11 @@ class Fold:
         self.meta_tx = meta_tx
         self.meta_rx = meta_rx
         self.header = header
-        self.tx: dict[object, dict[int, str]] = {}          # learnt: ch -> src -> transmitter dccommsId
+        self.tx: dict[object, dict[int, Sender]] = {}       # learnt: ch -> src -> transmitter
         self.flows: list[FlowState] = []
         self.fid: dict[str, int] = {}
         self.frames: list[FrameState] = []
-        self.index: dict[str, dict[int, FrameState]] = {}  # transmitter dccommsId -> seq -> frame
-        self.max_tx_seq: dict[str, int] = {}
+        self.senders: dict[str, Sender] = {}                # transmitter dccommsId -> its frames
         self.channels: dict[object, ChannelState] = {}
         self.t_end: object = None           # None: no event yet
 
@@ -160,16 +170,21 @@ class Fold:
 
     def tx_dev(self, ch: object, src: int) -> str:
         """The dccommsId transmitting as `src` on channel `ch` (or `ch:src` if nobody knows)."""
-        dev = self.tx.get(ch, {}).get(src)
-        if dev is None:
-            dev = self.meta_tx.get((ch, src))
-            if dev is None:
-                dev = f"{ch}:{src}"
-        return dev
+        s = self.tx.get(ch, {}).get(src)
+        if s is not None:
+            return s.dev
+        dev = self.meta_tx.get((ch, src))
+        return dev if dev is not None else f"{ch}:{src}"
+
+    def sender(self, dev: str) -> Sender:
+        s = self.senders.get(dev)
+        if s is None:
+            s = self.senders[dev] = Sender(dev)
+        return s
 
     def frame(self, dev: str, seq: int) -> FrameState | None:
-        by = self.index.get(dev)
-        return by.get(seq) if by is not None else None
+        s = self.senders.get(dev)
+        return s.frames.get(seq) if s is not None else None
 
     def _channel(self, ch: object) -> ChannelState:
         c = self.channels.get(ch)
@@ -197,17 +212,13 @@ class Fold:
         of row k's record."""
         if len(rows) != len(t9):
             raise ValueError(f"{len(rows)} rows and {len(t9)} times")
-        index = self.index
         flows = self.flows
         dtx = self.tx
         header = self.header
-        max_tx_seq = self.max_tx_seq
         channels = self.channels
         last_ch: object = None
         c = ChannelState()
-        ctx: dict[int, str] = {}                # the channel's transmitters
-        last_dev = ""
-        dev_frames: dict[int, FrameState] = {}  # the transmitter's frames
+        ctx: dict[int, Sender] = {}             # the channel's transmitters by source address
         t_end = self.t_end
         t_end_f = t_end if isinstance(t_end, float) else -math.inf     # t_end when it is a float
         k = 0
@@ -243,31 +254,37 @@ class Fold:
                 if ev == "rx":
                     c.delivered += 1
                     at_tx = False
-                    tx_dev = ctx.get(src) or self.tx_dev(ch, src)
+                    got_s = ctx.get(src)
+                    snd = got_s if got_s is not None else self.sender(self.tx_dev(ch, src))
                 elif ev == "drop":
                     de = c.drop_events
                     de[reason] = de.get(reason, 0) + 1
                     known = ctx.get(src)
                     if known is not None:
-                        at_tx = dev == known
+                        at_tx = dev == known.dev
                     else:
                         at_tx = reason in _TX_REASONS or (reason not in _RX_REASONS and r[12] is None)
-                    if at_tx:
-                        if known is None:
-                            ctx[src] = dev
-                        tx_dev = dev
+                    if known is not None:
+                        snd = known
+                    elif at_tx:
+                        snd = ctx[src] = self.sender(dev)
                     else:
-                        tx_dev = known if known is not None else self.tx_dev(ch, src)
+                        snd = self.sender(self.tx_dev(ch, src))
                 else:
                     at_tx = True
-                    tx_dev = dev
-                    if src not in ctx:
-                        ctx[src] = dev
+                    got_s = ctx.get(src)
+                    if got_s is None:
+                        snd = ctx[src] = self.sender(dev)
+                    elif got_s.dev == dev:
+                        snd = got_s
+                    else:               # the address was another transmitter's first
+                        snd = self.sender(dev)
                     if ev == "tx":
                         c.sent += 1
                         c.bytes_on_air += size
                     else:
                         c.enqueued += 1
+                tx_dev = snd.dev
                 kind: str = r[9]
                 if kind != "data":
                     if ev == "tx":      # control frames only count as bytes on air of the flow they serve
@@ -279,12 +296,7 @@ class Fold:
                         m.ctrl_bytes_on_air += size
                     continue
 
-                if tx_dev is not last_dev:
-                    got_frames = index.get(tx_dev)
-                    if got_frames is None:
-                        got_frames = index[tx_dev] = {}
-                    dev_frames = got_frames
-                    last_dev = tx_dev
+                dev_frames = snd.frames
                 f = dev_frames.get(seq)
                 if f is None:
                     dst: object = r[5]
@@ -317,8 +329,8 @@ class Fold:
                     f.t_tx = t
                     if f.n_tx == 1:
                         m.unique_sent += 1
-                        if seq > max_tx_seq.get(tx_dev, -1):
-                            max_tx_seq[tx_dev] = seq
+                        if seq > snd.max_seq:
+                            snd.max_seq = seq
                     m.sent += 1
                     m.data_bytes_on_air += size
                 elif ev == "rx":
@@ -457,7 +469,8 @@ class Fold:
                     msgs.append(f"outcome at {rdev}, not at its addressee {addressee}")
         if not rcv and not ntd:
             if nt == 0:
-                if self.max_tx_seq.get(f.dev, -1) > f.seq:
+                s = self.senders.get(f.dev)
+                if s is not None and s.max_seq > f.seq:
                     msgs.append(f"never transmitted nor dropped, although later frames of {f.dev} were sent")
                 else:
                     in_flight.append((f.dev, f.seq, m.name, "queued", f.t_enq, None))

@@ -94,13 +94,17 @@ def lines(rows: list[Row], t9: list[Any], make: Any) -> tuple[list[Any], list[in
     for k, row in enumerate(rows):
         r: tuple[Any, ...] = row
         t = t9[k]
-        plain = _plain(t)
+        if isinstance(t, float):        # _plain, typed: compiled, a comparison of doubles
+            tf: float = t
+            plain = 1e-4 <= tf < 1e15 or tf == 0.0
+        else:
+            plain = _plain(t)
         dist: Any = r[12]
         if dist is not None:
-            d = float(dist)
-            dist = _round(d, 1000.0, 3)
+            d = _round(float(dist), 1000.0, 3)
+            dist = d
             if plain:
-                plain = _plain(dist)
+                plain = 1e-4 <= d < 1e15 or d == 0.0
         if not plain:
             odd.append(k)
         out.append(make(t, r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], dist, bool(r[13])))
