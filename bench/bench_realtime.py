@@ -1,7 +1,9 @@
 """Realtime fidelity of the Zenoh runtime (issue #4), with real processes over loopback TCP.
 
 1. Delivery error with N modems (default 2, 16, 64), each vehicle's pose published at 50 Hz by a
-   separate process: `uwsimnet run --clock realtime` (embedded router) in one process, the poses in a
+   separate process (`--pose-phase spread`, the default: vehicle i at phase i/N of the period, as
+   vehicles with clocks of their own publish; `burst`: all N poses at once each period, the broker's
+   worst case): `uwsimnet run --clock realtime` (embedded router) in one process, the poses in a
    second, the applications in this one (every modem sends to its neighbour; one wildcard subscriber on
    `modem/*/rx`).  Delivery error = wall time at which the app gets a frame on `rx` minus the frame's
    modelled delivery time mapped to wall time (the broker's clock epoch + t_rx).  Also: the engine's own
@@ -112,7 +114,10 @@ def where(i: int, t: float) -> tuple[float, float, float]:
 
 
 # -- helper processes -------------------------------------------------------------------------------
-def role_poses(endpoint: str, world: str, n: int, hz: float, seconds: float) -> None:
+def role_poses(endpoint: str, world: str, n: int, hz: float, seconds: float, phase: str = "spread") -> None:
+    """Every vehicle's pose at `hz`.  `phase` "spread": vehicle i at its own phase i/n of the period, as
+    vehicles with clocks of their own publish; "burst": all n at once each period (one process for a
+    swarm, the worst case for the broker: n samples arrive together)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     with zenoh.open(client(endpoint)) as s:
         pubs = [s.declare_publisher(f"uwsimnet/{world}/pose/v{i}") for i in range(n)]
@@ -122,6 +127,10 @@ def role_poses(endpoint: str, world: str, n: int, hz: float, seconds: float) -> 
         while time.monotonic() - t0 < seconds:
             t = k * period
             for i, p in enumerate(pubs):
+                if phase == "spread":
+                    d = t0 + (k + i / n) * period - time.monotonic()
+                    if d > 0:
+                        time.sleep(d)
                 p.put(msgpack.packb({"p": list(where(i, t))}))
             k += 1
             d = t0 + k * period - time.monotonic()
@@ -257,7 +266,8 @@ def engine_late(out: str) -> tuple[float, float]:
 
 
 # -- 1. delivery error --------------------------------------------------------------------------------
-def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path, stall: str = "") -> dict:
+def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path, stall: str = "",
+                   phase: str = "spread") -> dict:
     """`stall` "": the plain row; "flood": plus 4 MB/s of frames to fbusy on a second channel, read by a
     subscriber of fbusy's rx; "stalled": the same with that subscriber SIGSTOPped (its buffers fill and
     the broker's puts to it block): the delivery error of the line's modems should not move."""
@@ -269,7 +279,8 @@ def bench_delivery(n: int, seconds: float, pose_hz: float, tmp: Path, stall: str
         listener = Sub([PY, __file__, "--role", "listen", "--endpoint", ep, "--world",
                         f"uwsimnet/{world}/modem/fbusy/rx"], "ready")
     poses = subprocess.Popen([PY, __file__, "--role", "poses", "--endpoint", ep, "--world", world, "--n", str(n),
-                              "--hz", str(pose_hz), "--seconds", str(seconds + 4)], cwd=ROOT)
+                              "--hz", str(pose_hz), "--seconds", str(seconds + 4), "--pose-phase", phase],
+                             cwd=ROOT)
     got: list[tuple[float, bytes]] = []
     epochs: list[float] = []
     try:
@@ -389,6 +400,9 @@ def main() -> None:
     ap.add_argument("--world")
     ap.add_argument("--n", type=int)
     ap.add_argument("--hz", type=float, default=50.0)
+    ap.add_argument("--pose-phase", choices=["spread", "burst"], default="spread",
+                    help="spread: each vehicle's poses at a phase of its own (vehicles with their own clocks);"
+                         " burst: all vehicles' at once (one process for the swarm: the broker's worst case)")
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--modems", default="2,16,64")
     ap.add_argument("--round-trips", type=int, default=2000)
@@ -402,7 +416,7 @@ def main() -> None:
     global BROKER_ZENOH_CONFIG
     BROKER_ZENOH_CONFIG = a.broker_zenoh_config
     if a.role == "poses":
-        role_poses(a.endpoint, a.world, a.n, a.hz, a.seconds)
+        role_poses(a.endpoint, a.world, a.n, a.hz, a.seconds, a.pose_phase)
         return
     if a.role == "listen":
         role_listen(a.endpoint, a.world)
@@ -421,7 +435,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         floor = bench_floor(a.seconds, 50.0)
-        rows = [bench_delivery(int(n), a.seconds, a.hz, tmp) for n in a.modems.split(",") if n]
+        rows = [bench_delivery(int(n), a.seconds, a.hz, tmp, phase=a.pose_phase) for n in a.modems.split(",") if n]
         if a.stall:
             rows += [bench_delivery(a.stall, a.seconds, a.hz, tmp, stall) for stall in ("flood", "stalled")]
         ov = bench_overhead(a.round_trips, tmp)
@@ -432,7 +446,7 @@ def main() -> None:
           f" Python {platform.python_version()}, zenoh {zv}; load average before/after {load[0]:.2f}/{load2[0]:.2f}"
           + (f"; broker and apps SCHED_RR {a.rt}" if a.rt else ""))
     print()
-    print(f"Delivery error ({a.seconds:g} s per row, poses {a.hz:g} Hz per vehicle), microseconds:")
+    print(f"Delivery error ({a.seconds:g} s per row, poses {a.hz:g} Hz per vehicle, {a.pose_phase}), microseconds:")
     print()
     print("| modems | pose msgs/s | frames delivered | error median | error p99 | error max |"
           " app-to-app excess median | p99 | engine late mean | max | broker CPU |")

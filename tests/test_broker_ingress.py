@@ -11,7 +11,8 @@ import pytest
 from test_edge import FakeSample, FakeSession, _wait  # noqa: E402
 from uwsimnet_gli import wire
 
-from uwsimnet_zenoh.bus.broker import Broker
+from uwsimnet_zenoh.bus import broker as broker_mod
+from uwsimnet_zenoh.bus.broker import POSE_CHUNK, POSE_RING, Broker
 from uwsimnet_zenoh.bus.outbox import Latest
 from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.kernel.realtime import RealtimeClock
@@ -41,7 +42,7 @@ class Rig:
 
     def pose(self, name: str, p: list[float], v: list[float] | None = None) -> None:
         m = {"p": p} if v is None else {"p": p, "v": v}
-        self.b._on_pose_sample(FakeSample(self.b.keys.pose(name), wire.pack(m)))
+        self.b._pose_sample(FakeSample(self.b.keys.pose(name), wire.pack(m)), self.clock.now(), self.clock.wall_epoch())
 
     def close(self) -> None:
         self.clock.stop()
@@ -108,6 +109,85 @@ def test_a_tx_sees_the_poses_that_arrived_before_it(rig):
     f = wire.decode_rx(rx1.puts[0][1])
     assert f.data == b"hi" and f.dist == pytest.approx(100.0)
     assert b.counters["nopose"] == 0 and net.modems["m0"].counters["tx"] == 1
+
+
+class _Secs:
+    def __init__(self, s: float) -> None:
+        self.s = s
+
+    def as_secs_f64(self) -> float:
+        return self.s
+
+
+class _Stamp:
+    """A Zenoh timestamp: what a router stamps a sample with when it receives it (NTP64, Unix seconds)."""
+
+    def __init__(self, unix: float) -> None:
+        self.unix = unix
+
+    def get_time_as_ntp64(self) -> _Secs:
+        return _Secs(self.unix)
+
+
+class _Ring:
+    """A subscriber with a ring channel handler: try_recv() until None."""
+
+    def __init__(self, samples: list) -> None:
+        self.samples = list(samples)
+
+    def try_recv(self) -> object:
+        return self.samples.pop(0) if self.samples else None
+
+    def undeclare(self) -> None:
+        pass
+
+
+def _sample(b: Broker, name: str, x: float, unix: float | None = None) -> FakeSample:
+    s = FakeSample(b.keys.pose(name), wire.pack({"p": [x, 0.0, 0.0], "v": [1.0, 0.0, 0.0]}))
+    s.timestamp = None if unix is None else _Stamp(unix)
+    return s
+
+
+def test_a_pose_is_stamped_with_its_arrival_at_the_router_within_the_take(rig):
+    """The router's timestamp says when a sample arrived: its simulation time is that, kept between the
+    previous take of the ring and now (a router on another machine may have another clock); no timestamp:
+    now."""
+    b = rig().b
+    epoch, now = 1000.0, 50.0                        # simulation time 0 was Unix time 1000
+    b._pose_taken = 40.0
+    b._pose_sample(_sample(b, "v0", 1.0, unix=1000.0 + 47.25), now, epoch)
+    b._pose_sample(_sample(b, "v1", 1.0, unix=1000.0 + 12.0), now, epoch)      # before the last take
+    b._pose_sample(_sample(b, "v2", 1.0, unix=1000.0 + 99.0), now, epoch)      # in the future
+    b._pose_sample(_sample(b, "v3", 1.0), now, epoch)
+    stamps = {k.rsplit("/", 1)[1]: e[0] for k, e in b._poses_in._pending.items()}
+    assert stamps == {"v0": 47.25, "v1": 40.0, "v2": 50.0, "v3": 50.0}
+
+
+def test_the_engine_takes_a_pose_burst_a_chunk_between_events_and_the_rest_when_it_reads_the_geometry(rig):
+    r = rig(3)
+    b, net = r.b, r.net
+    t = r.clock.now()                        # (not started: time stands still)
+    burst = [_sample(b, f"v{i % 3}", float(i)) for i in range(POSE_CHUNK + 10)]
+    b._pose_sub = _Ring(burst)
+    b._pull_some_poses()                     # a done hook: one chunk
+    assert len(b._pose_sub.samples) == 10 and b._poses_in.received == POSE_CHUNK
+    assert b.counters["poses"] == 3 and b.counters["poses_superseded"] == POSE_CHUNK - 3
+    pos = net.poses.positions(t + 1.0)       # reading the geometry takes the rest
+    assert not b._pose_sub.samples
+    assert b.counters["poses"] + b.counters["poses_superseded"] == POSE_CHUNK + 10
+    last = max(i for i in range(POSE_CHUNK + 10) if i % 3 == 0)     # v0's newest sample, stamped at t
+    assert pos[net.poses.index["v0"]][0] == last + 1.0 * 1.0           # and moved on 1 s at 1 m/s
+    assert b.counters["pose_ring_full"] == 0
+
+
+def test_a_full_ring_is_counted_and_said(rig, caplog):
+    b = rig(2).b
+    b._pose_sub = _Ring([_sample(b, "v0", 0.0)] * POSE_RING)
+    with caplog.at_level("WARNING", logger="uwsimnet.bus.broker"):
+        b._pull_poses(b.clock.now())
+    assert b.counters["pose_ring_full"] == 1
+    assert any("older ones may have been lost" in m for m in caplog.messages)
+    assert broker_mod.POSE_RING == POSE_RING
 
 
 def test_keys_are_parsed_once(rig):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 
 import msgpack
 import pytest
@@ -132,9 +133,22 @@ def test_pose():
     assert p.p == (1.0, 2.0, 3.0) and p.t == 4.0 and p.v == (0.5, 0.0, 0.0) and p.q == (0.0, 0.0, 0.0, 1.0)
     assert wire.decode_pose(msgpack.packb({"p": [1, 2, 3]})).v is None
     for bad in ({"p": [1, 2]}, {"p": [1, 2, float("nan")]}, {"p": [1, 2, "3"]}, {}, {"p": [1, 2, 3], "v": [1]},
-                {"p": [1, 2, 3], "t": "now"}, {"p": [True, 2, 3]}):
+                {"p": [1, 2, 3], "t": "now"}, {"p": [True, 2, 3]}, {"p": [1.0, float("inf"), 2.0]},
+                {"p": [1.0, 2.0, 3.0], "v": [0.0, -float("inf"), 0.0]}, {"p": [1.0, 2.0, None]}):
         with pytest.raises(CodecError):
             wire.decode_pose(msgpack.packb(bad))
+    # floats whose sum overflows are finite all the same (the all-float path falls back to the full check)
+    assert wire.decode_pose(msgpack.packb({"p": [1e308, 1e308, 0.0]})).p == (1e308, 1e308, 0.0)
+
+
+@given(st.lists(st.floats(width=64) | st.integers(-2**63, 2**63 - 1), min_size=3, max_size=3))
+def test_a_pose_is_taken_exactly_when_its_three_numbers_are_finite(xs):
+    raw = msgpack.packb({"p": xs})
+    if all(math.isfinite(x) for x in xs):
+        assert wire.decode_pose(raw).p == tuple(float(x) for x in xs)
+    else:
+        with pytest.raises(CodecError):
+            wire.decode_pose(raw)
 
 
 def test_request():

@@ -46,6 +46,9 @@ class _Ent:
     def undeclare(self) -> None:
         pass
 
+    def try_recv(self) -> None:      # a ring channel's subscriber with nothing in it
+        return None
+
 
 class _Liveliness:
     def declare_token(self, key: str) -> _Ent:
@@ -81,6 +84,7 @@ class FakeSample:
     def __init__(self, key: str, payload: bytes) -> None:
         self.key_expr = key
         self.payload = _Payload(payload)
+        self.timestamp = None
 
 
 class _Payload:

@@ -165,6 +165,26 @@ def test_stop_wakes_an_idle_clock_at_once(clock):
     assert time.perf_counter() - t0 < 0.5
 
 
+@pytest.mark.parametrize("far", [None, 3600.0])
+def test_poll_runs_the_idle_hooks_while_the_clock_waits(clock, far):
+    """With `poll`, a clock with nothing due for an hour (or nothing at all) still runs its idle hooks, each
+    `poll` s: input that arrives without a wake-up (a ring of samples) is taken meanwhile.  Without it, once."""
+    for poll, more in ((0.01, True), (None, False)):
+        c = clock(Scheduler())
+        if far is not None:
+            c.sched.at(far, lambda: None)
+        calls = []
+        c.idle_hooks.append(lambda calls=calls: calls.append(time.perf_counter()))
+        c.poll = poll
+        c.start()
+        deadline = time.monotonic() + (5.0 if more else 0.3)
+        while len(calls) < 5 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(calls) >= 5 if more else len(calls) == 1
+        c.stop()
+        assert c.join(5.0)
+
+
 def test_run_for_helper():
     c = RealtimeClock(Scheduler())
     t0 = time.perf_counter()

@@ -17,7 +17,9 @@ on the key space of docs/gli-protocol.md:
 
 Threading: Zenoh callbacks run on Zenoh's threads and only hand raw bytes on: a tx message to its
 modem's ingress `Lane` (bounded; the engine takes the lanes round-robin, so a flood on one modem does
-not delay the others), anything else to `clock.call_soon`.  Decoding and simulation happen on the
+not delay the others), anything else to `clock.call_soon`.  Pose samples have no callback: they wait
+in a Zenoh ring channel that the engine takes from (a chunk between events, all of it when it reads
+the geometry), each stamped with the time the router received it.  Decoding and simulation happen on the
 engine thread, which never makes a Zenoh put: rx, status, trace, pose and clock messages leave through
 bounded `Outbox`es (bus/outbox.py), one publisher thread each (one per modem), so a consumer that
 cannot keep up loses messages at the edge, counted per modem (`info` "edge", the run summary), and
@@ -56,6 +58,12 @@ SWITCH_INTERVAL = 0.0005
 """s: the interpreter's thread switch interval while a broker runs (see Broker.start)."""
 KEY_CACHE = 4096
 """Key expressions whose parse is remembered (tx keys -> modem id, pose keys -> vehicle and verdict)."""
+POSE_RING = 16384
+"""Pose samples Zenoh holds for the engine between two takes (a ring: when full, the oldest goes)."""
+POSE_POLL_S = 0.002
+"""Wall s: the engine takes the pose samples at least this often when it waits (RealtimeClock.poll)."""
+POSE_CHUNK = 32
+"""Pose samples the engine takes between two events (~0.15 ms of its time on a quiet machine)."""
 _MISS = object()
 
 def _direct(fn: Any) -> Any:
@@ -139,7 +147,8 @@ class Broker:
         """tx key -> modem id (None: not a tx key of this world), parsed once per key."""
         self._pose_keys: dict[str, tuple[str | None, str | None]] = {}
         """pose key -> (vehicle, None) to apply, or (name, counter) to refuse, classified once per key."""
-        self._pose_seen: set[str] = set()
+        self._pose_sub: Any = None
+        self._pose_taken = 0.0      # simulation time of the last take of the ring (arrival stamps are not before)
         self._to_wake: deque[Outbox] = deque()
         """Outboxes holding non-urgent messages (statuses) whose thread is to be woken (_wake_outboxes)."""
         self._misc = self._outbox("*misc", outbox_capacity)
@@ -185,7 +194,13 @@ class Broker:
         ent = self._entities
         cb = _direct
         ent.append(s.declare_subscriber(k.tx_all, cb(self._on_tx_sample)))
-        ent.append(s.declare_subscriber(k.pose_all, cb(self._on_pose_sample), allowed_origin=zenoh.Locality.REMOTE))
+        # poses wait in a ring on Zenoh's side, with no Python callback: a swarm publishes its poses in
+        # bursts (256 vehicles at once), and 256 callbacks in a row take the interpreter from the engine
+        # thread for milliseconds (docs/runtime.md); the engine takes them when it reads the geometry
+        self._pose_sub = s.declare_subscriber(k.pose_all, zenoh.handlers.RingChannel(POSE_RING),
+                                              allowed_origin=zenoh.Locality.REMOTE)
+        ent.append(self._pose_sub)
+        self.clock.poll = POSE_POLL_S
         ent.append(s.declare_queryable(k.info_all, cb(self._on_info_query)))
         ent.append(s.declare_queryable(k.control_all, cb(self._on_control_query)))
         ent.append(s.liveliness().declare_subscriber(k.drivers("real"), cb(self._on_driver_sample), history=True))
@@ -200,6 +215,7 @@ class Broker:
         self.clock.idle_hooks.append(self._publish_due)
         self.clock.idle_hooks.append(self._pull_poses_now)
         self.clock.done_hooks.append(self._wake_outboxes)
+        self.clock.done_hooks.append(self._pull_some_poses)
         net.poses.pull = self._pull_poses
         self._schedule_poses()
         if self.clock_rate_hz > 0:
@@ -218,6 +234,7 @@ class Broker:
         if self._closed:
             return
         self._closed = True
+        self._pose_sub = None
         if self._trace_buf is not None:
             with contextlib.suppress(Exception):
                 self._trace_buf.flush()
@@ -350,17 +367,41 @@ class Broker:
             if lane.more():
                 self.clock.call_soon(self._drain_lane, lane)
 
-    def _on_pose_sample(self, sample: zenoh.Sample) -> None:
-        # kept as the newest sample of its key, never waking the engine: the engine applies it when it
-        # next reads the geometry (a transmission, info, state) or idles, as of its arrival time; only a
-        # key's first sample wakes the engine (the vehicle's first pose is applied and logged at once)
-        pl = sample.payload
-        raw = pl.to_bytes() if len(pl) <= wire.MAX_SMALL_MESSAGE else None
-        key = str(sample.key_expr)
-        if self._poses_in.offer(key, self.clock.now(), raw) and key not in self._pose_seen \
-                and len(self._pose_seen) < POSE_KEYS:
-            self._pose_seen.add(key)
-            self.clock.call_soon(self._pull_poses_now)
+    def _take_poses(self, limit: int = POSE_RING) -> None:
+        """(engine) Move up to `limit` of the pose samples Zenoh holds into `_poses_in`, each stamped with its
+        arrival."""
+        sub = self._pose_sub
+        if sub is None:
+            return
+        clock = self.clock
+        now = clock.now()
+        epoch = clock.wall_epoch()
+        n = 0
+        while n < limit:
+            smp = sub.try_recv()
+            if smp is None:
+                self._pose_taken = now      # all taken: what comes next arrived after now
+                return
+            n += 1
+            self._pose_sample(smp, now, epoch)
+        if limit >= POSE_RING:
+            self.counters["pose_ring_full"] += 1
+            self.warn("pose_ring_full", "%d pose samples waited for the engine: older ones may have been"
+                      " lost", n)
+
+    def _pose_sample(self, sample: Any, now: float, epoch: float) -> None:
+        """One pose sample, kept as the newest of its key, stamped with its arrival in simulation time: the
+        Zenoh timestamp a router gave it on arrival (bounded by the previous take and `now`: another
+        machine's clock may be off), else `now`.  `epoch`: the clock's wall_epoch()."""
+        raw = sample.payload.to_bytes()       # (a pose is a few dozen bytes; Zenoh's ring bounds the rest)
+        if len(raw) > wire.MAX_SMALL_MESSAGE:
+            raw = None
+        ts = sample.timestamp
+        stamp = now
+        if ts is not None:
+            at = (ts.get_time_as_ntp64().as_secs_f64() - epoch) * self.clock.speed
+            stamp = min(now, max(self._pose_taken, at))
+        self._poses_in.offer(str(sample.key_expr), stamp, raw)
 
     def _on_info_query(self, query: zenoh.Query) -> None:
         self._queue_query(self._info_lane, query, self._answer_info, query)
@@ -483,11 +524,18 @@ class Broker:
         """(engine, idle hook) Apply the pose samples that have arrived by now."""
         self._pull_poses(self.clock.now())
 
-    def _pull_poses(self, t: float) -> None:
+    def _pull_some_poses(self) -> None:
+        """(engine, done hook) Apply up to POSE_CHUNK of the pose samples that have arrived: a burst (a
+        swarm's poses published at once) is taken a chunk between two events rather than all of it at the
+        next transmission, which then finds little left to apply."""
+        self._pull_poses(self.clock.now(), POSE_CHUNK)
+
+    def _pull_poses(self, t: float, limit: int = POSE_RING) -> None:
         """(engine; PoseTable.pull) Apply the newest pose sample of each vehicle that arrived by
         simulation time t, as of its arrival time.  A sample superseded by a newer one of the same vehicle
         before the geometry was needed is counted (`poses_superseded`), not decoded: the newer one
         replaces it entirely (position, velocity, time)."""
+        self._take_poses(limit)
         got = self._poses_in.take(t)
         if got:
             for key, n, stamp, raw in got:

@@ -236,52 +236,50 @@ POSE_KEYS = 4096
 class Latest:
     """Pose samples waiting for the engine, coalesced per key: only the newest sample of a key (and the
     one before it, for a reader at an earlier time) is kept, so a flood of poses costs the engine one
-    decode per vehicle, never one per sample, and never wakes it.
+    decode per vehicle, never one per sample.
 
-    The Zenoh thread calls `offer(key, stamp, raw)` (stamp: simulation time of arrival).  The engine
-    calls `take(t)` for what arrived by simulation time t: per key, the newest sample stamped at or
-    before t, with the number of samples it stands for (itself and those it superseded)."""
+    The engine thread does both sides: `offer(key, stamp, raw)` as it takes samples from Zenoh's ring
+    (stamp: simulation time of arrival), `take(t)` for what arrived by simulation time t: per key, the
+    newest sample stamped at or before t, with the number of samples it stands for (itself and those it
+    superseded)."""
 
-    __slots__ = ("capacity", "_pending", "_lock", "refused", "received")
+    __slots__ = ("capacity", "_pending", "refused", "received")
 
     def __init__(self, capacity: int = POSE_KEYS) -> None:
         self.capacity = capacity
         self._pending: dict[str, list[Any]] = {}     # key -> [stamp, raw, prev stamp, prev raw, count]
-        self._lock = threading.Lock()
         self.refused = 0
         self.received = 0
 
     def offer(self, key: str, stamp: float, raw: Any) -> bool:
         """Keep `raw` as the newest sample of `key`; False if refused (too many distinct keys waiting)."""
-        with self._lock:
-            self.received += 1
-            e = self._pending.get(key)
-            if e is None:
-                if len(self._pending) >= self.capacity:
-                    self.refused += 1
-                    return False
-                self._pending[key] = [stamp, raw, None, None, 1]
-                return True
-            e[2], e[3] = e[0], e[1]
-            e[0], e[1] = stamp, raw
-            e[4] += 1
+        self.received += 1
+        e = self._pending.get(key)
+        if e is None:
+            if len(self._pending) >= self.capacity:
+                self.refused += 1
+                return False
+            self._pending[key] = [stamp, raw, None, None, 1]
             return True
+        e[2], e[3] = e[0], e[1]
+        e[0], e[1] = stamp, raw
+        e[4] += 1
+        return True
 
     def take(self, t: float) -> list[tuple[str, int, float, Any]]:
         """(key, samples, stamp, raw) of the newest sample of each key stamped at or before `t`."""
-        if not self._pending:
+        pending = self._pending
+        if not pending:
             return []
         out = []
-        with self._lock:
-            pending = self._pending
-            for key, e in list(pending.items()):
-                if e[0] <= t:
-                    out.append((key, e[4], e[0], e[1]))
-                    del pending[key]
-                elif e[2] is not None and e[2] <= t:      # the newest came later: the one before it
-                    out.append((key, e[4] - 1, e[2], e[3]))
-                    e[2] = e[3] = None
-                    e[4] = 1
+        for key, e in list(pending.items()):
+            if e[0] <= t:
+                out.append((key, e[4], e[0], e[1]))
+                del pending[key]
+            elif e[2] is not None and e[2] <= t:      # the newest came later: the one before it
+                out.append((key, e[4] - 1, e[2], e[3]))
+                e[2] = e[3] = None
+                e[4] = 1
         return out
 
     def __len__(self) -> int:

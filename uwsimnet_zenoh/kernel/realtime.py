@@ -97,6 +97,9 @@ class RealtimeClock:
         """Called on the engine thread when it is about to wait and the next event is more than
         IDLE_SLACK away: deferred work (writing trace records) goes here, out of the path between an
         event and its effect.  A hook must be short and must bound its own backlog."""
+        self.poll: float | None = None
+        """Longest wall wait (s) between two rounds of idle hooks, None: no limit.  For input that comes
+        without a wake-up (samples a hook takes from a Zenoh ring channel): it is taken within `poll`."""
         self.errors = 0
         self.first_error: BaseException | None = None
         """The first exception an event, inbox item or idle hook raised (None: none did)."""
@@ -282,6 +285,7 @@ class RealtimeClock:
                             hook()
                         except BaseException as e:  # noqa: BLE001 - the engine keeps running (SystemExit of a plug-in too)
                             self._fail(f"idle hook {getattr(hook, '__qualname__', hook)}", e)
+                poll = self.poll
                 with cond:
                     if inbox or self._stopping:
                         continue
@@ -289,11 +293,14 @@ class RealtimeClock:
                         cond.wait()
                         continue
                     if nxt is None:
-                        cond.wait()
+                        cond.wait(poll)
                         continue
                     target = self._t0 + nxt / self.speed        # wall (perf_counter) deadline
                     wait = target - pc() - self.spin
                     if wait > 0:
+                        if poll is not None and wait > poll:
+                            cond.wait(poll)                     # then the idle hooks again
+                            continue
                         cond.wait(wait)
                         if inbox or self._stopping or self._paused:
                             continue

@@ -434,6 +434,13 @@ def _tag(m: dict) -> int | None:
 
 def _vec(m: dict, key: str, n: int, required: bool) -> tuple[float, ...] | None:
     v = m.get(key)
+    if type(v) is list and len(v) == n:       # the common case, all floats (a swarm: hundreds at once)
+        for x in v:
+            if type(x) is not float:
+                break
+        else:
+            if math.isfinite(sum(v)):         # not if a nan or inf is in it (nor on an overflow: below)
+                return tuple(v)
     if v is None:
         if required:
             raise CodecError("invalid", f"missing {key!r}")
