@@ -12,7 +12,7 @@ from test_edge import FakeSample, FakeSession, _wait  # noqa: E402
 from uwsimnet_gli import wire
 
 from uwsimnet_zenoh.bus import broker as broker_mod
-from uwsimnet_zenoh.bus.broker import POSE_CHUNK, POSE_RING, Broker
+from uwsimnet_zenoh.bus.broker import POSE_RING, Broker
 from uwsimnet_zenoh.bus.outbox import Latest
 from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.kernel.realtime import RealtimeClock
@@ -163,21 +163,18 @@ def test_a_pose_is_stamped_with_its_arrival_at_the_router_within_the_take(rig):
     assert stamps == {"v0": 47.25, "v1": 40.0, "v2": 50.0, "v3": 50.0}
 
 
-def test_the_engine_takes_a_pose_burst_a_chunk_between_events_and_the_rest_when_it_reads_the_geometry(rig):
+def test_reading_the_geometry_takes_the_whole_ring_and_applies_the_newest_per_vehicle(rig):
     r = rig(3)
     b, net = r.b, r.net
     t = r.clock.now()                        # (not started: time stands still)
-    burst = [_sample(b, f"v{i % 3}", float(i)) for i in range(POSE_CHUNK + 10)]
+    burst = [_sample(b, f"v{i % 3}", float(i)) for i in range(40)]
     b._pose_sub = _Ring(burst)
-    b._pull_some_poses()                     # a done hook: one chunk
-    assert len(b._pose_sub.samples) == 10 and b._poses_in.received == POSE_CHUNK
-    assert b.counters["poses"] == 3 and b.counters["poses_superseded"] == POSE_CHUNK - 3
-    pos = net.poses.positions(t + 1.0)       # reading the geometry takes the rest
-    assert not b._pose_sub.samples
-    assert b.counters["poses"] + b.counters["poses_superseded"] == POSE_CHUNK + 10
-    last = max(i for i in range(POSE_CHUNK + 10) if i % 3 == 0)     # v0's newest sample, stamped at t
-    assert pos[net.poses.index["v0"]][0] == last + 1.0 * 1.0           # and moved on 1 s at 1 m/s
-    assert b.counters["pose_ring_full"] == 0
+    pos = net.poses.positions(t + 1.0)       # a transmission's geometry: PoseTable.pull takes the ring
+    assert not b._pose_sub.samples and b._poses_in.received == 40
+    assert (b.counters["poses"], b.counters["poses_superseded"]) == (3, 37)
+    last = max(i for i in range(40) if i % 3 == 0)      # v0's newest sample, stamped at t
+    assert pos[net.poses.index["v0"]][0] == last + 1.0 * 1.0          # and moved on 1 s at 1 m/s
+    assert b._pose_taken == t and b.counters["pose_ring_full"] == 0
 
 
 def test_a_full_ring_is_counted_and_said(rig, caplog):

@@ -18,8 +18,8 @@ on the key space of docs/gli-protocol.md:
 Threading: Zenoh callbacks run on Zenoh's threads and only hand raw bytes on: a tx message to its
 modem's ingress `Lane` (bounded; the engine takes the lanes round-robin, so a flood on one modem does
 not delay the others), anything else to `clock.call_soon`.  Pose samples have no callback: they wait
-in a Zenoh ring channel that the engine takes from (a chunk between events, all of it when it reads
-the geometry), each stamped with the time the router received it.  Decoding and simulation happen on the
+in a Zenoh ring channel that the engine takes from when it reads the geometry or idles (every 2 ms at
+least), each stamped with the time the router received it.  Decoding and simulation happen on the
 engine thread, which never makes a Zenoh put: rx, status, trace, pose and clock messages leave through
 bounded `Outbox`es (bus/outbox.py), one publisher thread each (one per modem), so a consumer that
 cannot keep up loses messages at the edge, counted per modem (`info` "edge", the run summary), and
@@ -62,8 +62,6 @@ POSE_RING = 16384
 """Pose samples Zenoh holds for the engine between two takes (a ring: when full, the oldest goes)."""
 POSE_POLL_S = 0.002
 """Wall s: the engine takes the pose samples at least this often when it waits (RealtimeClock.poll)."""
-POSE_CHUNK = 32
-"""Pose samples the engine takes between two events (~0.15 ms of its time on a quiet machine)."""
 _MISS = object()
 
 def _direct(fn: Any) -> Any:
@@ -215,7 +213,6 @@ class Broker:
         self.clock.idle_hooks.append(self._publish_due)
         self.clock.idle_hooks.append(self._pull_poses_now)
         self.clock.done_hooks.append(self._wake_outboxes)
-        self.clock.done_hooks.append(self._pull_some_poses)
         net.poses.pull = self._pull_poses
         self._schedule_poses()
         if self.clock_rate_hz > 0:
@@ -367,9 +364,8 @@ class Broker:
             if lane.more():
                 self.clock.call_soon(self._drain_lane, lane)
 
-    def _take_poses(self, limit: int = POSE_RING) -> None:
-        """(engine) Move up to `limit` of the pose samples Zenoh holds into `_poses_in`, each stamped with its
-        arrival."""
+    def _take_poses(self) -> None:
+        """(engine) Move the pose samples Zenoh holds into `_poses_in`, each stamped with its arrival."""
         sub = self._pose_sub
         if sub is None:
             return
@@ -377,14 +373,14 @@ class Broker:
         now = clock.now()
         epoch = clock.wall_epoch()
         n = 0
-        while n < limit:
+        while True:
             smp = sub.try_recv()
             if smp is None:
-                self._pose_taken = now      # all taken: what comes next arrived after now
-                return
+                break
             n += 1
             self._pose_sample(smp, now, epoch)
-        if limit >= POSE_RING:
+        self._pose_taken = now              # what comes next arrived after now
+        if n >= POSE_RING:
             self.counters["pose_ring_full"] += 1
             self.warn("pose_ring_full", "%d pose samples waited for the engine: older ones may have been"
                       " lost", n)
@@ -524,18 +520,12 @@ class Broker:
         """(engine, idle hook) Apply the pose samples that have arrived by now."""
         self._pull_poses(self.clock.now())
 
-    def _pull_some_poses(self) -> None:
-        """(engine, done hook) Apply up to POSE_CHUNK of the pose samples that have arrived: a burst (a
-        swarm's poses published at once) is taken a chunk between two events rather than all of it at the
-        next transmission, which then finds little left to apply."""
-        self._pull_poses(self.clock.now(), POSE_CHUNK)
-
-    def _pull_poses(self, t: float, limit: int = POSE_RING) -> None:
+    def _pull_poses(self, t: float) -> None:
         """(engine; PoseTable.pull) Apply the newest pose sample of each vehicle that arrived by
         simulation time t, as of its arrival time.  A sample superseded by a newer one of the same vehicle
         before the geometry was needed is counted (`poses_superseded`), not decoded: the newer one
         replaces it entirely (position, velocity, time)."""
-        self._take_poses(limit)
+        self._take_poses()
         got = self._poses_in.take(t)
         if got:
             for key, n, stamp, raw in got:
