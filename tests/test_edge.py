@@ -247,6 +247,37 @@ def test_outbox_is_bounded_ordered_and_never_blocks():
     assert got == [0, 1, 2, 3] and out.sent == 4
 
 
+def _outbox_cpus(cpu: int | None) -> list[set[int]]:
+    """The CPUs each outbox thread of a broker may run on, asked on that thread."""
+    import os
+
+    net = Network(_scene(2, 100, False), flows=False)
+    b = Broker(FakeSession({}), net, RealtimeClock(net.sched, cpu=cpu), publish_trace=False,  # type: ignore[arg-type]
+               clock_rate_hz=0)
+    b.start()
+    try:
+        seen: list[set[int]] = []
+        for out in b.outboxes.values():
+            out.put(lambda _: seen.append(os.sched_getaffinity(0)), None, "rx")
+        n = len(b.outboxes)
+        _wait(lambda: len(seen) == n)
+        return seen
+    finally:
+        b.close()
+
+
+def test_the_brokers_outboxes_run_on_the_engines_cpu():
+    """The threads that run Python in a broker share the engine's CPU (clock.cpu): an outbox's hand-off
+    is then a context switch, not a wake-up on another core; with cpu None they run anywhere."""
+    import os
+
+    allowed = os.sched_getaffinity(0)
+    pinned = _outbox_cpus(max(allowed))
+    assert len(pinned) >= 3 and all(s == {max(allowed)} for s in pinned), pinned     # *misc, m0, m1
+    assert all(s == allowed for s in _outbox_cpus(None))
+    assert os.sched_getaffinity(0) == allowed
+
+
 def test_outbox_counts_and_warns_the_puts_that_waited_on_a_consumer(monkeypatch, caplog):
     """A put that waits STALL_S or more (Zenoh gives no other sign of a subscriber that does not read) is
     counted by kind with the longest wait, and warned; quick puts are not.  The clock is the test's."""

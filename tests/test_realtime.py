@@ -219,3 +219,67 @@ def test_a_network_in_realtime_delivers_after_the_modelled_delay(clock):
     for (t_enq, t_rx, wall), w_sent in zip(got, sent, strict=True):
         assert t_rx - t_enq == pytest.approx(modelled, abs=1e-9)
         assert wall - w_sent == pytest.approx(modelled, abs=SLACK)
+
+
+def test_cpu_pins_the_engine_thread_and_only_it(clock):
+    """RealtimeClock(cpu=c): the engine thread runs on CPU c only; the thread that made it keeps its CPUs
+    (kernel.realtime.pin_thread: the threads that run Python share one core, Zenoh's stay free)."""
+    import os
+
+    allowed = os.sched_getaffinity(0)
+    cpu = max(allowed)
+    c = clock(cpu=cpu)
+    c.start()
+    assert c.submit(os.sched_getaffinity, 0).result(5.0) == {cpu}
+    assert os.sched_getaffinity(0) == allowed
+    free = clock()
+    free.start()
+    assert free.submit(os.sched_getaffinity, 0).result(5.0) == allowed     # cpu=None: not pinned
+
+
+def test_pin_thread_refuses_a_cpu_the_process_may_not_use():
+    import os
+
+    from uwsimnet_zenoh.kernel.realtime import pin_thread
+
+    allowed = os.sched_getaffinity(0)
+    got = []
+    t = threading.Thread(target=lambda: got.append((pin_thread(max(allowed) + 4096), pin_thread(None),
+                                                    os.sched_getaffinity(0))))
+    t.start()
+    t.join(5.0)
+    assert got == [(False, False, allowed)]
+
+
+@pytest.mark.parametrize(("allowed", "env", "want"), [
+    ({0, 1, 2, 3}, None, None),         # default: not pinned
+    ({0, 1, 2, 3}, "auto", 3),          # the last CPU the process may use
+    ({5}, "auto", None),                # one CPU: nothing to choose
+    ({0, 1, 2, 3}, "1", 1),
+    ({0, 1, 2, 3}, "any", None),
+    ({0, 1, 2, 3}, " ANY ", None),
+])
+def test_python_cpu_choice(monkeypatch, allowed, env, want):
+    import os
+
+    from uwsimnet_zenoh.app.realtime import python_cpu
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(allowed))
+    if env is None:
+        monkeypatch.delenv("UWSIMNET_PYTHON_CPU", raising=False)
+    else:
+        monkeypatch.setenv("UWSIMNET_PYTHON_CPU", env)
+    assert python_cpu() == want
+
+
+@pytest.mark.parametrize("env", ["7", "-1", "two"])
+def test_python_cpu_says_why_it_ignores_a_bad_setting(monkeypatch, caplog, env):
+    import os
+
+    from uwsimnet_zenoh.app.realtime import python_cpu
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    monkeypatch.setenv("UWSIMNET_PYTHON_CPU", env)
+    with caplog.at_level("WARNING", logger="uwsimnet"):
+        assert python_cpu() is None
+    assert f"UWSIMNET_PYTHON_CPU={env} ignored: this process may use CPUs 0,1 (or say auto, any)" in caplog.text

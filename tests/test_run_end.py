@@ -243,3 +243,35 @@ def test_tracing_plugins_are_checked_at_validate(tmp_path, plugins, cls, needle)
     assert r.stderr.startswith(f"{sc}:4: ")
     if needle:
         assert needle in r.stderr
+
+
+def test_a_signal_stops_the_wait_and_never_deadlocks_it():
+    """StopOnSignal (bus/router.py: `uwsimnet router`, realtime `uwsimnet run`): a signal that comes at any
+    point of the main thread's wait ends it within the wait's slice, signum kept; a second one raises
+    KeyboardInterrupt.  (Its handler once set a threading.Event: a signal inside that Event's wait
+    deadlocked the process on the Event's lock, so a realtime run never ended.)"""
+    import random
+    import threading
+
+    from uwsimnet_zenoh.bus.router import StopOnSignal
+
+    assert threading.current_thread() is threading.main_thread()    # else SIGTERM would end this process
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    rnd = random.Random(7)
+    for _ in range(200):
+        with StopOnSignal() as stop:
+            t = threading.Timer(rnd.uniform(0.0, 0.004), os.kill, (os.getpid(), signal.SIGTERM))
+            t.start()
+            t0 = time.monotonic()
+            assert stop.wait(30.0)
+            assert time.monotonic() - t0 < 5.0
+            t.join()
+            assert stop.stopped and stop.signum == signal.SIGTERM
+    with StopOnSignal() as stop:
+        assert not stop.wait(0.01) and not stop.stopped
+        os.kill(os.getpid(), signal.SIGINT)
+        assert stop.wait(5.0)
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before

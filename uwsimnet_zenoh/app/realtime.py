@@ -144,6 +144,30 @@ def realtime_priority() -> None:
         log.warning("UWSIMNET_RT_PRIORITY=%s ignored: %s", prio, e)
 
 
+def python_cpu() -> int | None:
+    """The one CPU of the threads that run Python (the engine, the outboxes: kernel.realtime.pin_thread),
+    or None (not pinned, the default).
+
+    UWSIMNET_PYTHON_CPU=auto: the last CPU this process may use (if it may use more than one); =N: CPU N.
+    Opt-in: it trims the broker's overhead (docs/benchmarks.md, "One core for Python"), but a pinned thread
+    cannot leave its CPU, and under SCHED_RR another busy thread of the same priority there holds it for a
+    whole 100 ms time slice (seen).  Zenoh's threads are never pinned."""
+    want = os.environ.get("UWSIMNET_PYTHON_CPU", "").strip().lower()
+    if want in ("", "any"):
+        return None
+    try:
+        allowed = os.sched_getaffinity(0)
+    except (AttributeError, OSError):
+        return None
+    if want == "auto":
+        return max(allowed) if len(allowed) > 1 else None
+    if want.isdigit() and int(want) in allowed:
+        return int(want)
+    log.warning("UWSIMNET_PYTHON_CPU=%s ignored: this process may use CPUs %s (or say auto, any)", want,
+                ",".join(map(str, sorted(allowed))))
+    return None
+
+
 class _Stderr(logging.StreamHandler):
     """A handler on whatever sys.stderr is when it writes (run in-process, e.g. by a test that has
     swapped and closed stderr since, a handler bound to the old stream would fail)."""
@@ -225,7 +249,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
     failed = threading.Event()          # an event, a MAC or the engine raised: the run stops (exit 2)
     clock = RealtimeClock(net.sched, until=duration, speed=getattr(args, "speed", 1.0),
                           spin=float(os.environ.get("UWSIMNET_SPIN") or SPIN),
-                          on_error=lambda e: failed.set())
+                          on_error=lambda e: failed.set(), cpu=python_cpu())
     try:
         conf = (make_config("client", connect=connect, connect_timeout_ms=3000, config_file=zconf)
                 if mode == "client" else make_config("router", listen=listen, config_file=zconf))
@@ -302,9 +326,9 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
             until = f"for {duration:g} s" if duration is not None else "until Ctrl-C"
             pace = "realtime clock" if clock.speed == 1.0 else f"realtime clock x{clock.speed:g}"
             print(f"uwsimnet: running {until} ({pace}); trace {trace or '(none: summary only)'}", flush=True)
-            while not stop.event.is_set() and not clock.done.is_set() and not failed.is_set():
-                stop.event.wait(0.2)
-            if stop.event.is_set():
+            while not stop.stopped and not clock.done.is_set() and not failed.is_set():
+                stop.wait(0.2)
+            if stop.stopped:
                 print(f"uwsimnet: stopping ({signal.Signals(stop.signum).name}) at t={clock.now():.3f} s",
                       flush=True)
         finally:
@@ -315,7 +339,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
             if clock.first_error is not None or clock.fatal is not None:
                 e = clock.fatal or clock.first_error
                 reason, extra = "error", {"error": f"{type(e).__name__}: {e}"}
-            elif stop.event.is_set():
+            elif stop.stopped:
                 reason, extra = "signal", {"signal": signal.Signals(stop.signum).name}
             else:
                 reason, extra = "duration", {}

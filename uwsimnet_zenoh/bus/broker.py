@@ -262,7 +262,7 @@ class Broker:
     def _outbox(self, name: str, capacity: int) -> Outbox:
         out = self.outboxes.get(name)
         if out is None or out._closing:
-            out = self.outboxes[name] = Outbox(name, capacity, defer=self._to_wake.append)
+            out = self.outboxes[name] = Outbox(name, capacity, defer=self._to_wake.append, cpu=self.clock.cpu)
         return out
 
     def _wake_outboxes(self) -> None:

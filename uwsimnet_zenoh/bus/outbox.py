@@ -24,6 +24,8 @@ from collections import Counter, deque
 from collections.abc import Callable
 from typing import Any
 
+from ..kernel.realtime import pin_thread
+
 log = logging.getLogger("uwsimnet.bus.outbox")
 _sleep = time.sleep
 _clock = time.monotonic
@@ -47,11 +49,13 @@ class Outbox:
 
     `put(fn, arg, kind)` is for the engine thread (any thread, in fact): it appends and wakes the
     thread, or drops and counts when `capacity` calls are waiting.  `close(timeout)` lets the thread
-    finish what is queued (up to `timeout` s), then ends it."""
+    finish what is queued (up to `timeout` s), then ends it.  `cpu`: the thread runs on that CPU only (the
+    engine's: kernel.realtime.pin_thread)."""
 
     def __init__(self, name: str, capacity: int = OUTBOX_CAPACITY, handoff: bool = True,
-                 defer: Callable[[Outbox], None] | None = None) -> None:
+                 defer: Callable[[Outbox], None] | None = None, cpu: int | None = None) -> None:
         self.name = name
+        self.cpu = cpu
         self.handoff = handoff
         self.defer = defer
         """Where a non-urgent put that would wake the thread says so instead (the broker wakes every such
@@ -120,6 +124,7 @@ class Outbox:
                 "stalled": dict(self.stalled), "stalled_max": self.stalled_max}
 
     def _run(self) -> None:
+        pin_thread(self.cpu)
         q = self._q
         cond = self._cond
         while True:

@@ -58,18 +58,38 @@ def precise_timers(slack_ns: int = TIMER_SLACK_NS) -> bool:
         return False
 
 
+def pin_thread(cpu: int | None) -> bool:
+    """Run the calling thread on CPU `cpu` only (Linux: the thread's own affinity; None, elsewhere, or if it
+    fails: nothing): True if pinned.
+
+    For the threads that run Python in a realtime process (the engine, the outbox threads).  The GIL lets
+    only one of them run at a time, so spreading them over cores buys no parallelism; it makes every
+    hand-off between them (tx -> engine, engine -> outbox) wake a thread on another core, an interrupt to a
+    CPU that may be idle, ~100 us on a VM.  On one core the hand-off is a context switch.  Zenoh's own
+    threads stay free (docs/runtime.md, "One core for Python")."""
+    if cpu is None or not hasattr(os, "sched_setaffinity"):
+        return False
+    try:
+        os.sched_setaffinity(0, {cpu})          # pid 0: the calling thread (Linux)
+    except (OSError, ValueError):
+        return False
+    return True
+
+
 class RealtimeClock:
     """Runs `sched` in wall time on a thread of its own.
 
     `speed`: simulated seconds per wall second (1.0 = real time).  `spin`: wall seconds of busy wait
     before each event (0 disables it).  `until`: simulation time at which the clock stops by itself
     (`done` is set then); None runs until `stop()`.  `on_error(exc)` is called when an event or an inbox
-    item raises; the clock logs it and keeps running either way.
+    item raises; the clock logs it and keeps running either way.  `cpu`: the engine thread runs on that
+    CPU only (`pin_thread`; None: wherever the OS puts it).
     """
 
     def __init__(self, sched: Scheduler, *, speed: float = 1.0, spin: float = SPIN,
                  until: float | None = None, on_error: Callable[[BaseException], None] | None = None,
-                 perf_counter: Callable[[], float] = time.perf_counter, yield_cpu: bool = True) -> None:
+                 perf_counter: Callable[[], float] = time.perf_counter, yield_cpu: bool = True,
+                 cpu: int | None = None) -> None:
         if not speed > 0:
             raise ValueError(f"speed must be > 0, got {speed}")
         self.sched = sched
@@ -79,6 +99,7 @@ class RealtimeClock:
         self.on_error = on_error
         self._pc = perf_counter
         self.yield_cpu = yield_cpu and hasattr(os, "sched_yield")
+        self.cpu = cpu
         self._cond = threading.Condition(threading.Lock())
         self._inbox: deque[_Item] = deque()
         self._thread: threading.Thread | None = None
@@ -230,6 +251,7 @@ class RealtimeClock:
 
     def _loop(self) -> None:
         precise_timers()
+        pin_thread(self.cpu)
         sched = self.sched
         cond = self._cond
         inbox = self._inbox
