@@ -32,6 +32,7 @@ from typing import Any
 MODULES: tuple[str, ...] = (
     "uwsimnet_zenoh.kernel.scheduler",
     "uwsimnet_zenoh.kernel.frame",
+    "uwsimnet_zenoh.kernel.link",
     "uwsimnet_zenoh.trace.tracer",
     "uwsimnet_zenoh.traffic.flow",
     "uwsimnet_zenoh.phy.modem",

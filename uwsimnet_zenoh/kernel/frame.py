@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Final
 
-BROADCAST = 255
+BROADCAST: Final = 255
 """Destination address that every modem on the channel accepts (as in dccomms)."""
 
 

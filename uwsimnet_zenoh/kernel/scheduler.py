@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import heapq
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Final
+
+PURE: Final = __file__.endswith(".py")
+"""Running from source (not compiled): heapq's C functions, faster there than `_push`/`_pop` interpreted."""
 
 
 class Event:
@@ -34,6 +37,55 @@ class Event:
         self.cancelled = True
 
 
+def _before(a: Event, b: Event) -> bool:
+    """The heap's order, (t, seq), between two events (compiled: two double and two int comparisons)."""
+    return a.t < b.t or (a.t == b.t and a.seq < b.seq)
+
+
+def _push(heap: list[Event], ev: Event) -> None:
+    """heapq.heappush with the order compiled in: heapq's C code compares through `Event.__lt__`'s Python
+    entry point (a rich comparison call per step), this compares the fields.  The keys (t, seq) are
+    unique, so any heap pops the same sequence: the order of a run does not depend on this code."""
+    heap.append(ev)
+    pos = len(heap) - 1
+    while pos > 0:
+        parent = (pos - 1) >> 1
+        up = heap[parent]
+        if not _before(ev, up):
+            break
+        heap[pos] = up
+        pos = parent
+    heap[pos] = ev
+
+
+def _pop(heap: list[Event]) -> Event:
+    """heapq.heappop, compiled (`_push`): the hole at the top goes down the smaller children to a leaf, the
+    last event fills it and climbs back (heapq's own way: fewer comparisons than a plain sift down)."""
+    last = heap.pop()
+    n = len(heap)
+    if n == 0:
+        return last
+    top = heap[0]
+    pos = 0
+    child = 1
+    while child < n:
+        right = child + 1
+        if right < n and not _before(heap[child], heap[right]):
+            child = right
+        heap[pos] = heap[child]
+        pos = child
+        child = 2 * pos + 1
+    while pos > 0:
+        parent = (pos - 1) >> 1
+        up = heap[parent]
+        if not _before(last, up):
+            break
+        heap[pos] = up
+        pos = parent
+    heap[pos] = last
+    return top
+
+
 class Interrupted(Exception):  # noqa: N818 - it is what happened, not an error
     """Raised out of `Scheduler.run` when `interrupt()` was called: between two events, never inside one."""
 
@@ -52,7 +104,10 @@ class Scheduler:
             t = self.now
         self._seq += 1
         ev = Event(t, self._seq, fn, args)
-        heapq.heappush(self._heap, ev)
+        if PURE:
+            heapq.heappush(self._heap, ev)
+        else:
+            _push(self._heap, ev)
         return ev
 
     def after(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event:
@@ -65,14 +120,14 @@ class Scheduler:
             raise self._stop()
         heap = self._heap
         while heap and heap[0].cancelled:
-            heapq.heappop(heap)
+            heapq.heappop(heap) if PURE else _pop(heap)
         return heap[0].t if heap else None
 
     def step(self) -> None:
         """Run the next event (the caller has checked there is one)."""
         if self.interrupted:
             raise self._stop()
-        ev = heapq.heappop(self._heap)
+        ev = heapq.heappop(self._heap) if PURE else _pop(self._heap)
         if ev.cancelled:
             return
         self.now = ev.t
@@ -93,13 +148,12 @@ class Scheduler:
     def run(self, until: float) -> None:
         """Virtual time: run every event with t <= until, then stand at `until` (see `interrupt`)."""
         heap = self._heap
-        pop = heapq.heappop
         n = 0
         try:
             while heap and heap[0].t <= until:
                 if self.interrupted:
                     raise self._stop()
-                ev = pop(heap)
+                ev = heapq.heappop(heap) if PURE else _pop(heap)
                 if ev.cancelled:
                     continue
                 self.now = ev.t

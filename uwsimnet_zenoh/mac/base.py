@@ -11,55 +11,22 @@ under the entry-point group `uwsimnet.mac`.  docs/mac.md walks through an exampl
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any, Protocol
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Final
 
 from mypy_extensions import mypyc_attr
+
+from ..kernel.link import MacContext, MacHooks
 
 if TYPE_CHECKING:
     from ..kernel.frame import Frame
     from ..kernel.scheduler import Event
 
 
-class MacContext(Protocol):
-    """What a modem offers its MAC (`phy.modem.Modem` has it; mac never imports phy)."""
-
-    address: int
-    id: str
-    half_duplex: bool
-    max_distance: float                          # the device's maxDistance, m
-    header_bytes: int                            # the device's headerBytes (framing added to every frame)
-    fifo: Any                                    # the tx FIFO (a deque of Frame); read it, pop via fifo_pop
-
-    @property
-    def now(self) -> float: ...
-    @property
-    def phy_busy(self) -> bool: ...              # our transmitter is processing or on air
-    def fifo_peek(self) -> Frame | None: ...
-    def fifo_pop(self) -> Frame | None: ...
-    def transmit(self, frame: Frame, delay: float | None = None) -> None: ...
-    # hand a frame to the PHY (only when not phy_busy); first bit after the intrinsic delay, or `delay` s
-    def channel_busy(self) -> bool: ...          # carrier sense: energy heard at our receiver now
-    def channel_busy_until(self) -> float: ...
-    def deliver(self, frame: Frame) -> None: ...   # up to the application (after the rx delay)
-    def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None: ...
-    # a frame we give up on: traced `drop` + its final status (`dropped`, or `failed` after retries)
-    def status(self, frame: Frame, event: str) -> None: ...
-    # for the application: `sent` (final, unacknowledged) | `transmitted` (an attempt on air, an
-    # acknowledgement expected) | `acked` (final); docs/gli-protocol.md#status-modem--app
-    def timer(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event: ...
-    def tx_time(self, size: int) -> float: ...
-    @property
-    def tx_delay(self) -> float: ...             # intrinsic delay from transmit() to the first bit, s
-    def max_prop_delay(self, distance: float | None = None) -> float: ...
-    def trace_rx(self, frame: Frame) -> None: ...  # trace a control frame received (not delivered)
-    def ctrl_frame(self, dst: int, size: int, info: dict, about: Frame | None = None) -> Frame: ...
-    def random(self) -> float: ...
-
-
 @mypyc_attr(allow_interpreted_subclasses=True)      # compiled (uwsimnet_zenoh._native): user MACs subclass it
-class Mac:
-    """Base class; the defaults make a MAC that never overhears and ignores failed receptions."""
+class Mac(MacHooks):
+    """Base class; the defaults make a MAC that never overhears and ignores failed receptions.  The modem
+    calls it through `kernel.link.MacHooks` and offers it a `MacContext` (docs/mac.md)."""
 
     overhear = False
     """True if the MAC must see intact frames addressed to others (e.g. RTS/CTS for deferral)."""
@@ -67,28 +34,6 @@ class Mac:
     def __init__(self, ctx: MacContext, params: Mapping[str, str]) -> None:
         self.ctx = ctx
         self.params = params
-
-    def ready(self) -> bool:
-        """Would take a frame offered now straight into service (it then does not count in the FIFO)?"""
-        return False
-
-    def on_queue(self) -> None:
-        """A frame was added to the FIFO."""
-
-    def on_tx_done(self, frame: Frame) -> None:
-        """The last bit of `frame` left our transmitter."""
-
-    def on_rx(self, frame: Frame) -> None:
-        """`frame` arrived intact and is addressed to us (or broadcast)."""
-
-    def on_overhear(self, frame: Frame) -> None:
-        """`frame` arrived intact but is addressed to another node (only if `overhear`)."""
-
-    def on_rx_error(self, frame: Frame, reason: str) -> None:
-        """A frame addressed to us was lost (prop, col, mult, range)."""
-
-    def close(self) -> None:
-        """The modem leaves the simulation: give back what you hold (drop with a reason)."""
 
     def param(self, name: str, default: float) -> float:
         """A numeric parameter of `<macProtocol>`, with a clear error if it is not a number."""
@@ -101,7 +46,7 @@ class Mac:
             raise ValueError(f"macProtocol {name}: expected a number, got {raw!r}") from None
 
 
-IDLE = "idle"
+IDLE: Final = "idle"
 """The state of a OneFrameMac with no frame in service."""
 
 

@@ -21,7 +21,7 @@ hands the frame to its application, which filters; traced `rx` with `implicit: t
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from mypy_extensions import mypyc_attr
 
@@ -32,7 +32,7 @@ from .registry import register
 if TYPE_CHECKING:
     from ..kernel.scheduler import Event
 
-IPG = 100e-6
+IPG: Final = 100e-6
 """dccomms_ros CustomROSCommsDevice::_fixedIPGmicros: the gap before a queued frame, s."""
 DELIVERY = ("all", "addressee")
 

@@ -18,19 +18,19 @@ from __future__ import annotations
 
 import random
 from collections import deque
-from collections.abc import Callable
 from typing import Any
 
 from ..kernel.frame import BROADCAST, Frame
-from ..kernel.scheduler import Event, Scheduler
+from ..kernel.link import MacContext
+from ..kernel.scheduler import Scheduler
 from .base import Mac
 from .registry import resolve
 
 Effect = tuple
 
 
-class FakeContext:
-    """What a modem offers its MAC, recorded instead of done (see `mac.base.MacContext`)."""
+class FakeContext(MacContext):
+    """What a modem offers its MAC, recorded instead of done (see `kernel.link.MacContext`)."""
 
     def __init__(self, address: int = 1, *, half_duplex: bool = True, max_distance: float = 1500.0,
                  header_bytes: int = 0, bitrate: float = 1000.0, tx_delay: float = 0.0,
@@ -41,7 +41,7 @@ class FakeContext:
         self.max_distance = max_distance
         self.header_bytes = header_bytes
         self.bitrate = bitrate
-        self._tx_delay = tx_delay
+        self.tx_delay = tx_delay
         self.prop_s_per_m = prop_s_per_m
         self.sched = Scheduler()
         self.fifo: deque[Frame] = deque()
@@ -51,29 +51,24 @@ class FakeContext:
         self.busy_until = 0.0
         self.on_air: Frame | None = None
         """The frame our transmitter is sending (from `transmit` until `Harness.tx_done`)."""
-        self._rng = random.Random(seed)
+        self.phy_busy = False
+        """Whether `on_air` holds a frame."""
+        self.random = random.Random(seed).random
         self._seq = 0
 
     # -- MacContext ---------------------------------------------------------------------------
-    @property
-    def now(self) -> float:
-        return self.sched.now
-
-    @property
-    def phy_busy(self) -> bool:
-        return self.on_air is not None
-
     def fifo_peek(self) -> Frame | None:
         return self.fifo[0] if self.fifo else None
 
     def fifo_pop(self) -> Frame | None:
         return self.fifo.popleft() if self.fifo else None
 
-    def transmit(self, frame: Frame) -> None:
+    def transmit(self, frame: Frame, delay: float | None = None) -> None:
         if self.on_air is not None:
             raise AssertionError(f"transmit while the transmitter is busy with {self.on_air}")
         frame.tries += 1
         self.on_air = frame
+        self.phy_busy = True
         self.log.append(("transmit", frame))
 
     def channel_busy(self) -> bool:
@@ -90,18 +85,11 @@ class FakeContext:
         if event != "dropped":          # the frame's final status is not `dropped` (`failed` after retries)
             self.log.append(("status", frame, event))
 
-    def status(self, frame: Frame, event: str) -> None:
+    def status(self, frame: Frame, event: str, reason: str | None = None) -> None:
         self.log.append(("status", frame, event))
-
-    def timer(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event:
-        return self.sched.after(delay, fn, *args)
 
     def tx_time(self, size: int) -> float:
         return size * 8.0 / self.bitrate
-
-    @property
-    def tx_delay(self) -> float:
-        return self._tx_delay
 
     def max_prop_delay(self, distance: float | None = None) -> float:
         return (self.max_distance if distance is None else distance) * self.prop_s_per_m
@@ -112,9 +100,6 @@ class FakeContext:
     def ctrl_frame(self, dst: int, size: int, info: dict, about: Frame | None = None) -> Frame:
         return Frame(self.address, dst, about.seq if about else -1, size, 0,
                      flow=about.flow if about else None, kind="ctrl", t_enq=self.now, dev=self.id, info=info)
-
-    def random(self) -> float:
-        return self._rng.random()
 
     # -- making frames --------------------------------------------------------------------------
     def data_frame(self, dst: int, size: int, *, src: int | None = None, seq: int | None = None,
@@ -159,6 +144,7 @@ class Harness:
         if frame is None:
             raise AssertionError("tx_done with nothing on air")
         self.ctx.on_air = None
+        self.ctx.phy_busy = False
         self.mac.on_tx_done(frame)
         return frame
 

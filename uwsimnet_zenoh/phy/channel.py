@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import TYPE_CHECKING, cast
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Final, cast
 
 import numpy as np
 
@@ -29,14 +30,14 @@ if TYPE_CHECKING:
     from ..trace.tracer import Tracer
     from .modem import Modem, SinrLossModel
 
-INF = float("inf")
-TOUCH = 1e-9
+INF: Final = float("inf")
+TOUCH: Final = 1e-9
 """Receptions that overlap by less than a nanosecond touch: back-to-back frames from one modem end and
 begin at the same instant, but float rounding of (t0 + dur) + delay vs (t0 + delay) + dur can make them
 overlap by ~1e-16 s, which must not count as a collision."""
 
 
-LIST_SLOTS = 512
+LIST_SLOTS: Final = 512
 """Up to this many listener slots the geometry is also kept as Python lists: the per-frame path reads a few
 slots one by one (the addressee, the log's transmissions at one slot), and a list item is a Python float
 read in a few ns where a numpy scalar costs ~100 ns to make and more to add or compare.  The values are the
@@ -48,7 +49,7 @@ Geometry = tuple[np.ndarray, np.ndarray, np.ndarray, float, Slots, Slots, list[b
 """What `Channel._geometry` gives: distance, delay, reach (arrays), the longest delay, then the same three
 as `Slots`."""
 
-GEO_CACHE_SLOTS = 8_000_000
+GEO_CACHE_SLOTS: Final = 8_000_000
 """At most this many (sender, listener) pairs of cached geometry per channel (17 bytes each): every sender
 of a small network, ~800 of 10 000 on one channel (the others' geometry is computed when they send)."""
 
@@ -62,12 +63,12 @@ class Transmission:
     channel is small (LIST_SLOTS), else the array itself).  `own` is the sender's slot on this channel if
     it listens there (half duplex: its own signal occupies its receiver), else -1."""
 
-    __slots__ = ("frame", "sender", "t0", "dur", "delay", "dl", "own", "_arr", "_end", "max_end", "dist", "pow",
-                 "acq")
+    __slots__ = ("frame", "sender", "t0", "dur", "delay", "dl", "own", "_arr", "_end", "max_end", "dist", "dd",
+                 "pow", "acq")
 
     def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, delay: np.ndarray,
                  dist: np.ndarray, max_end: float, dl: list[float] | np.ndarray | None = None,
-                 own: int = -1) -> None:
+                 own: int = -1, dd: list[float] | np.ndarray | None = None) -> None:
         self.frame = frame
         self.sender = sender
         self.t0 = t0
@@ -78,9 +79,18 @@ class Transmission:
         self._arr: np.ndarray | None = None
         self._end: np.ndarray | None = None
         self.dist = dist
+        self.dd = dist if dd is None else dd     # the distances as `dl` has the delays (a list when small)
         self.max_end = max_end
         self.pow: np.ndarray | None = None    # received power per listener slot, linear (SINR mode only)
         self.acq: dict[int, bool] | None = None   # slot -> acquired (SINR mode, capture "first" only)
+
+    def distance(self, j: int) -> float:
+        """The distance to slot j, m (from the list when there is one: no numpy scalar made)."""
+        d = self.dd
+        if isinstance(d, list):
+            dlist: list[float] = d
+            return dlist[j]
+        return float(d[j])
 
     @property
     def powers(self) -> np.ndarray:
@@ -134,6 +144,8 @@ class Channel:
         self._slots: tuple | None = None            # (pose version, members, positions, alive & known)
         self._longest = 0.0
         self.transmissions = 0
+        self._end_at: Callable[[Transmission, int, bool, bool], None] = self._reception_end    # bound once
+        self._end_sinr_at: Callable[[Transmission, int, float, float, bool], None] = self._reception_end_sinr
 
     # -- membership ---------------------------------------------------------------------------
     def attach(self, modem: Modem) -> int:
@@ -230,7 +242,7 @@ class Channel:
 
         dist, delay, ok, max_delay, distl, dl, okl = self._geometry(sender, now)
         own = sender.rx_slot if sender.rx_channel is self else -1
-        tx = Transmission(frame, sender, now, dur, delay, dist, now + dur + max_delay, dl, own)
+        tx = Transmission(frame, sender, now, dur, delay, dist, now + dur + max_delay, dl, own, distl)
         sinr = self.sinr
         if sinr:
             tx.pow = self._powers(sender, dist)
@@ -247,9 +259,9 @@ class Channel:
             per = 0.0 if getattr(err, "lossless", False) is True else float(err.per(dist[j:j + 1], frame.size)[0])
             end = float(dl[j]) + now + dur          # = (delay + now + dur)[j], the same double
             if sinr:
-                self.sched.at(end, self._reception_end_sinr, tx, j, sender.loss_random(), per, True)
+                self.sched.at(end, self._end_sinr_at, tx, j, sender.loss_random(), per, True)
             else:
-                self.sched.at(end, self._reception_end, tx, j, sender.loss_random() < per, True)
+                self.sched.at(end, self._end_at, tx, j, sender.loss_random() < per, True)
             return
         if frame.dst == BROADCAST:       # every listener is intended: overhearers are among them
             targets = [i for i, m in enumerate(self.listeners) if i != own and m is not None]
@@ -274,9 +286,9 @@ class Channel:
                 continue
             assert pers is not None             # some target is reached
             if sinr:
-                at(float(ends[j]), self._reception_end_sinr, tx, j, rnd(), float(pers[n]), n < intended)
+                at(float(ends[j]), self._end_sinr_at, tx, j, rnd(), float(pers[n]), n < intended)
             else:
-                at(float(ends[j]), self._reception_end, tx, j, bool(rnd() < pers[n]), n < intended)
+                at(float(ends[j]), self._end_at, tx, j, bool(rnd() < pers[n]), n < intended)
 
     def _unreachable(self, sender: Modem, frame: Frame, j: int, now: float, dist: np.ndarray) -> None:
         m = self.listeners[j]
@@ -312,14 +324,14 @@ class Channel:
         frame = tx.frame
         if not intended:
             if not (lost or col):
-                modem.phy_overheard(frame, float(tx.dist[j]))
+                modem.phy_overheard(frame, tx.distance(j))
             return
         if lost or col:
             reason = "mult" if (lost and col) else ("prop" if lost else "col")
-            self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=float(tx.dist[j]))
+            self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=tx.distance(j))
             modem.phy_failed(frame, reason)
         else:
-            modem.phy_received(frame, float(tx.dist[j]))
+            modem.phy_received(frame, tx.distance(j))
 
     # -- SINR mode (capture) ------------------------------------------------------------------
     def _powers(self, sender: Modem, dist: np.ndarray) -> np.ndarray:
@@ -364,15 +376,15 @@ class Channel:
         frame = tx.frame
         if not intended:
             if reason is None:
-                modem.phy_overheard(frame, float(tx.dist[j]))
+                modem.phy_overheard(frame, tx.distance(j))
             return
         if reason is not None:
-            self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=float(tx.dist[j]))
+            self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=tx.distance(j))
             modem.phy_failed(frame, reason)
         else:
             if spans:
                 self.captures += 1
-            modem.phy_received(frame, float(tx.dist[j]))
+            modem.phy_received(frame, tx.distance(j))
 
     def _acquired(self, g: Transmission, j: int) -> bool:
         """Capture "first": did slot j lock onto `g` when it arrived?  Only if it was not transmitting, not
@@ -432,14 +444,23 @@ class Channel:
         t = self.sched.now
         log = self.log
         while True:
-            last = None
+            last = -INF
             for g in log:
+                if g.own == slot:
+                    continue
                 d = g.dl
-                if slot < len(d) and g.own != slot:
-                    a = d[slot] + g.t0
-                    end = a + g.dur
-                    if a <= t < end - TOUCH and (last is None or end > last):
-                        last = end
-            if last is None:
+                if isinstance(d, list):     # typed, as in `busy`: doubles, no float objects
+                    dlist: list[float] = d
+                    if slot >= len(dlist):
+                        continue
+                    a = dlist[slot] + g.t0
+                elif slot < len(d):
+                    a = float(d[slot] + g.t0)
+                else:
+                    continue
+                end = a + g.dur
+                if a <= t < end - TOUCH and end > last:
+                    last = end
+            if last == -INF:
                 return t
-            t = float(last)
+            t = last

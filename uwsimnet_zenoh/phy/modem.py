@@ -16,9 +16,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 from ..kernel.frame import BROADCAST, Frame
+from ..kernel.link import MacContext, MacHooks
 
 if TYPE_CHECKING:
-    from ..kernel.scheduler import Event, Scheduler
+    from ..kernel.scheduler import Scheduler
     from ..trace.tracer import Tracer
     from .channel import Channel
 
@@ -61,23 +62,10 @@ class SinrLossModel(LossModel, Protocol):
     def per_from_sinr(self, sinr_db: float, size_bytes: int) -> Any: ...
 
 
-class MacHooks(Protocol):
-    """What a modem tells its MAC (mac.Mac implements it; phy never imports mac, as ns-3's UanPhyListener)."""
-
-    overhear: bool
-
-    def ready(self) -> bool: ...
-    def on_queue(self) -> None: ...
-    def on_tx_done(self, frame: Frame) -> None: ...
-    def on_rx(self, frame: Frame) -> None: ...
-    def on_overhear(self, frame: Frame) -> None: ...
-    def on_rx_error(self, frame: Frame, reason: str) -> None: ...
-    def close(self) -> None: ...
-
-
-class Modem:
+class Modem(MacContext):
     """One device: built by the engine's build step, which gives it its loss model and then its MAC
-    (`attach_mac`) before the first frame."""
+    (`attach_mac`) before the first frame.  It is its MAC's context (kernel.link.MacContext) and calls
+    it through `MacHooks` (mac.Mac is one): phy never imports mac."""
 
     def __init__(self, cfg: DeviceParams, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
                  tx_channel: Channel, rx_channel: Channel, seeds: Callable[[str, str], int],
@@ -107,7 +95,7 @@ class Modem:
         self.fifo_bytes = 0
         self.fifo_cap = cfg.tx_fifo_bytes
         self.max_frame_bytes = cfg.max_frame_bytes
-        self._tx_delay = cfg.intrinsic_tx_s           # the per-frame path reads these (a device never changes)
+        self.tx_delay = cfg.intrinsic_tx_s            # the per-frame path reads these (a device never changes)
         self._tx_jitter = cfg.jitter_tx_s
         self._rx_delay = cfg.intrinsic_rx_s
         self._rx_jitter = cfg.jitter_rx_s
@@ -122,9 +110,21 @@ class Modem:
         self.random = random.Random(seeds("mac", self.id)).random
         self.on_receive: list[RxCallback] = []
         self.on_status: list[StatusCallback] = []
-        self.counters = {"enq": 0, "tx": 0, "rx": 0, "drop": 0}
+        self.enqueued = 0               # frames offered, transmissions, deliveries, drops (`counters`)
+        self.transmitted = 0
+        self.delivered = 0
+        self.dropped = 0
         self.mac: MacHooks = _NO_MAC
         self.rx_slot = -1
+        # the scheduled steps, bound once: a bound method made per event is a lookup by name and an object
+        self._on_air_at: Callable[[Frame], None] = self._on_air
+        self._tx_end_at: Callable[[Frame], None] = self._tx_end
+        self._deliver_at: Callable[[Frame, float], None] = self._deliver
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Frames so far: offered (enq), transmitted (tx), delivered (rx) and dropped (drop); a copy."""
+        return {"enq": self.enqueued, "tx": self.transmitted, "rx": self.delivered, "drop": self.dropped}
 
     def on_air_size(self, payload: int) -> int:
         """Bytes on air for `payload` bytes of data: the framed size (if the device has a framing) plus
@@ -140,7 +140,7 @@ class Modem:
     @property
     def overhears(self) -> bool:
         """Whether the channel must hand this modem intact frames addressed to others (its MAC asks)."""
-        return self.mac.overhear
+        return bool(getattr(self.mac, "overhear", False))     # by name: a Python MAC's class attribute
 
     # -- the application side ------------------------------------------------------------------
     def send(self, dst: int, payload: int, *, data: bytes | None = None, flow: str | None = None,
@@ -155,7 +155,7 @@ class Modem:
         frame = Frame(self.address, dst, self._seq, size, payload, data=data,
                       flow=flow, t_enq=now, tag=tag, dev=self.id, msg=msg)
         self._seq += 1
-        self.counters["enq"] += 1
+        self.enqueued += 1
         mac = self.mac
         direct = not self.fifo and mac.ready()
         if refuse is None:
@@ -184,10 +184,6 @@ class Modem:
         return frame
 
     # -- what the MAC may do (MacContext) -------------------------------------------------------
-    @property
-    def now(self) -> float:
-        return self.sched.now
-
     def fifo_peek(self) -> Frame | None:
         return self.fifo[0] if self.fifo else None
 
@@ -208,22 +204,22 @@ class Modem:
         if delay is not None:
             d = delay
         else:
-            d = self._tx_delay
+            d = self.tx_delay
             if self._tx_jitter > 0:
                 d = max(0.0, self._jitter.gauss(d, self._tx_jitter))
         if d > 0:
-            self.sched.after(d, self._on_air, frame)
+            self.sched.after(d, self._on_air_at, frame)
         else:
             self._on_air(frame)
 
     def _on_air(self, frame: Frame) -> None:
         now = self.sched.now
         frame.t_tx = now
-        self.counters["tx"] += 1
+        self.transmitted += 1
         self.tracer.emit(now, "tx", self.tx_channel.id, self.id, frame, None, self.fifo_bytes)
         dur = frame.size * 8.0 / self.bitrate
         self.tx_channel.transmit(self, frame, dur)
-        self.sched.at(now + dur, self._tx_end, frame)       # = after(dur): the same double
+        self.sched.at(now + dur, self._tx_end_at, frame)       # = after(dur): the same double
 
     def _tx_end(self, frame: Frame) -> None:
         self.phy_busy = False
@@ -242,13 +238,13 @@ class Modem:
         t = max(self.sched.now + d, self._last_delivery)   # a modem hands frames up in order
         self._last_delivery = t
         if t > self.sched.now:
-            self.sched.at(t, self._deliver, frame, self._rx_dist)
+            self.sched.at(t, self._deliver_at, frame, self._rx_dist)
         else:
             self._deliver(frame, self._rx_dist)
 
     def _deliver(self, frame: Frame, dist: float) -> None:
         now = self.sched.now
-        self.counters["rx"] += 1
+        self.delivered += 1
         # a frame for another address handed up anyway (no MAC: the original's implicit broadcast)
         implicit = frame.dst != BROADCAST and frame.dst != self.address
         self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist, implicit=implicit)
@@ -259,7 +255,7 @@ class Modem:
         """Give `frame` up: traced `drop` with `reason`, and its final status `event` (`dropped`; a MAC
         that gave up after its retries says `failed`)."""
         frame.final = reason
-        self.counters["drop"] += 1
+        self.dropped += 1
         self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason, self.fifo_bytes)
         if self.on_status:
             self.status(frame, event, reason)
@@ -268,16 +264,8 @@ class Modem:
         for cb in self.on_status:
             cb(self, frame, event, reason, self.sched.now)
 
-    def timer(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event:
-        return self.sched.after(delay, fn, *args)
-
     def tx_time(self, size: int) -> float:
         return size * 8.0 / self.bitrate
-
-    @property
-    def tx_delay(self) -> float:
-        """Intrinsic delay from transmit() to the first bit on air (jitter not included), s."""
-        return self.cfg.intrinsic_tx_s
 
     def trace_rx(self, frame: Frame) -> None:
         """A MAC control frame reached its MAC intact: traced as `rx`, not handed to the application."""
@@ -318,13 +306,32 @@ class Modem:
         self.rx_channel.detach(self)
 
 
-class _Unattached:
+class _Unattached(MacHooks):
     """The MAC of a modem the build step has not finished: using it is a wiring bug, said clearly."""
 
-    overhear = False
+    def _bug(self, name: str) -> RuntimeError:
+        return RuntimeError(f"modem used before the build step attached its MAC ({name})")
 
-    def __getattr__(self, name: str) -> Any:
-        raise RuntimeError(f"modem used before the build step attached its MAC ({name})")
+    def ready(self) -> bool:
+        raise self._bug("ready")
+
+    def on_queue(self) -> None:
+        raise self._bug("on_queue")
+
+    def on_tx_done(self, frame: Frame) -> None:
+        raise self._bug("on_tx_done")
+
+    def on_rx(self, frame: Frame) -> None:
+        raise self._bug("on_rx")
+
+    def on_overhear(self, frame: Frame) -> None:
+        raise self._bug("on_overhear")
+
+    def on_rx_error(self, frame: Frame, reason: str) -> None:
+        raise self._bug("on_rx_error")
+
+    def close(self) -> None:
+        raise self._bug("close")
 
 
-_NO_MAC: Any = _Unattached()
+_NO_MAC = _Unattached()

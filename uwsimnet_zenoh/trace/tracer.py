@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Final
 
 from ..kernel.frame import Frame
 
@@ -43,7 +43,7 @@ ROW_FIELDS = ("t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind
               "implicit")
 
 
-_EXACT = 4503599627370496.0     # 2**52: below it a double's ulp is at most 1
+_EXACT: Final = 4503599627370496.0     # 2**52: below it a double's ulp is at most 1
 
 
 def rounded(xs: Sequence[Any], ndigits: int) -> list[Any]:
@@ -143,7 +143,7 @@ class Batch:
 BatchConsumer = Callable[[Batch], None]
 
 
-BATCH = 4096
+BATCH: Final = 4096
 """Events per batch handed to the batch consumers."""
 
 
@@ -155,7 +155,10 @@ class Tracer:
         self.batch = batch
         self._rows: list[Row] | None = None     # None: no batch consumer, each event counted at once
         self._rows_only = True                  # no event listener nor record sink
-        self._counts: dict[str, dict[str | None, int]] = {}     # ev -> reason -> events
+        self._counts: dict[str, dict[str | None, int]] = {}     # ev -> reason -> events (but the three below)
+        self._n_enq = 0                         # enq, tx and rx events without a reason (nearly all of them):
+        self._n_tx = 0                          # native counters, where a dict costs two lookups an event
+        self._n_rx = 0
 
     def add(self, sink: Callable[[Record], None]) -> None:
         """A record sink: called with each event as a dict (docs/trace-format.md), at once."""
@@ -183,10 +186,7 @@ class Tracer:
         compiled or not.)"""
         rows = self._rows
         if rows is None:
-            by = self._counts.get(ev)
-            if by is None:
-                by = self._counts[ev] = {}
-            by[reason] = by.get(reason, 0) + 1
+            self._count(ev, reason)
         else:
             rows.append((t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
                          reason, fifo, dist, implicit))
@@ -208,32 +208,44 @@ class Tracer:
         if not rows:
             return
         self._rows = []
-        counts = self._counts
-        last: str = ""
-        by: dict[str | None, int] = {}
         for r in rows:
-            ev: str = r[1]
-            if ev is not last:
-                got = counts.get(ev)
-                if got is None:
-                    got = counts[ev] = {}
-                by = got
-                last = ev
-            reason: str | None = r[10]
-            by[reason] = by.get(reason, 0) + 1
+            self._count(r[1], r[10])
         b = Batch(rows)
         for fn in self.consumers:
             fn(b)
 
+    def _count(self, ev: str, reason: str | None) -> None:
+        if reason is None:
+            if ev == "tx":
+                self._n_tx += 1
+                return
+            if ev == "enq":
+                self._n_enq += 1
+                return
+            if ev == "rx":
+                self._n_rx += 1
+                return
+        by = self._counts.get(ev)
+        if by is None:
+            by = self._counts[ev] = {}
+        by[reason] = by.get(reason, 0) + 1
+
+    def _by_reason(self) -> dict[str, dict[str | None, int]]:
+        """Events so far, ev -> reason -> count (a copy)."""
+        self.flush()
+        out = {ev: dict(by) for ev, by in self._counts.items()}
+        for ev, n in (("enq", self._n_enq), ("tx", self._n_tx), ("rx", self._n_rx)):
+            if n:
+                out.setdefault(ev, {})[None] = n
+        return out
+
     @property
     def counts(self) -> Counter[tuple[str, str | None]]:
         """Events so far by (ev, reason) (a copy)."""
-        self.flush()
-        return Counter({(ev, reason): n for ev, by in self._counts.items() for reason, n in by.items()})
+        return Counter({(ev, reason): n for ev, by in self._by_reason().items() for reason, n in by.items()})
 
     def count(self, ev: str, reason: str | None = None) -> int:
-        self.flush()
-        by = self._counts.get(ev, {})
+        by = self._by_reason().get(ev, {})
         if reason is None and ev == "drop":
             return sum(by.values())
         return by.get(reason, 0)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import random
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -22,17 +23,18 @@ class FlowSource:
         self.stop = min(end, spec.stop) if spec.stop is not None else end
         self._dst, self._size, self._name = spec.dst, spec.size, spec.name     # read per frame
         self._periodic = spec.arrival == "periodic"
-        self._rng = random.Random(seed)
+        self._random = random.Random(seed).random
+        self._fire_at: Callable[[], None] = self._fire          # bound once (not a lookup per frame)
         self._rate = 1.0 / spec.interval if spec.arrival == "poisson" else 0.0
         first = spec.start + self._gap() if self._rate else spec.start
         self.sent = 0
         if first < self.stop:
-            sched.at(first, self._fire)
+            sched.at(first, self._fire_at)
 
     def _gap(self) -> float:
         """The next Poisson gap: `random.expovariate(rate)`'s own formula (the same doubles), computed
         here rather than through the stdlib's Python method."""
-        return -math.log(1.0 - self._rng.random()) / self._rate
+        return -math.log(1.0 - self._random()) / self._rate
 
     def _fire(self) -> None:
         if self.sched.now >= self.stop:      # stopped early (its modem was removed)
@@ -45,4 +47,4 @@ class FlowSource:
         else:                                   # poisson
             nxt = self.sched.now + self._gap()
         if nxt < self.stop:
-            self.sched.at(nxt, self._fire)
+            self.sched.at(nxt, self._fire_at)
