@@ -143,14 +143,15 @@ def test_instant_messages_of_every_kind_cross_zenoh(modems, data_mode):
     d = note(a, "DELIVEREDIM")
     assert d.fields == (2,) and r1.fields[1] > 0
     assert time.monotonic() - t0 >= 2 * 0.1 + (im_us(6) + r1.fields[1]) / 1e6   # two crossings of 150 m
-    # in this order, each step no earlier than the time on air says (timers never fire early)
+    # in this order, each step no earlier than the time on air says (timers never fire early).  Measured
+    # from t0: the host may read a line late (it was pumping b), never early, so these bounds hold under load
     order = [(t, x.name) for t, x in a.seen if x.kind == "async"
              and x.name in ("SENDSTART", "SENDEND", "RECVSTART", "RECVEND", "DELIVEREDIM")][:5]
     assert [n for _, n in order] == ["SENDSTART", "SENDEND", "RECVSTART", "RECVEND", "DELIVEREDIM"], order
-    at_ = {n: t for t, n in order}
-    assert at_["SENDEND"] - at_["SENDSTART"] >= s0.fields[2] / 1e6 - 0.01
-    assert at_["RECVEND"] - at_["RECVSTART"] >= r1.fields[1] / 1e6 - 0.01
-    assert at_["RECVSTART"] - at_["SENDSTART"] >= s0.fields[2] / 1e6 + 2 * 0.1 - 0.01   # there and back, 150 m
+    at_ = {n: t - t0 for t, n in order}
+    assert at_["SENDEND"] >= s0.fields[2] / 1e6 - 0.01
+    assert at_["RECVSTART"] >= s0.fields[2] / 1e6 + 2 * 0.1 - 0.01                    # there and back, 150 m
+    assert at_["RECVEND"] >= (s0.fields[2] + r1.fields[1]) / 1e6 + 2 * 0.1 - 0.01
     # IM without ack: flagged noack, no report
     assert a.send("im", 2, b"no ack", "noack") == "OK"
     assert recv(b, "recvim", b"no ack").fields[3] == "noack"

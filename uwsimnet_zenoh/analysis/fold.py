@@ -16,6 +16,7 @@ from typing import Any, Final
 from mypy_extensions import mypyc_attr
 
 from ..kernel.frame import BROADCAST
+from ..trace.tracer import EventFold
 from .read import RX_REASONS, TX_REASONS
 
 _BROADCAST: Final = BROADCAST
@@ -95,8 +96,24 @@ class Sender:
 
     def __init__(self, dev: str) -> None:
         self.dev = dev
-        self.frames: dict[int, FrameState] = {}
+        self.seqs: list[FrameState] = []                # frames 0, 1, 2, ...: seq k at index k
+        self.frames: dict[int, FrameState] = {}         # the others (a seq that skipped ahead, negative)
         self.max_seq = -1
+
+    def get(self, seq: int) -> FrameState | None:
+        """Its data frame `seq`, if it has one.  A modem numbers its frames 0, 1, 2, ..., so they are a
+        list read by index (no int made for a key, no hash); a trace that skips goes on in the dict."""
+        seqs = self.seqs
+        if 0 <= seq < len(seqs):
+            return seqs[seq]
+        return self.frames.get(seq)
+
+    def put(self, seq: int, f: FrameState) -> None:
+        """Its new data frame `seq` (`get(seq)` was None)."""
+        if seq == len(self.seqs):
+            self.seqs.append(f)
+        else:
+            self.frames[seq] = f
 
 
 @mypyc_attr(acyclic=True)     # holds no reference back: not tracked by the cyclic GC (compiled)
@@ -142,7 +159,7 @@ class ChannelState:
         self.drop_events: dict[str | None, int] = {}
 
 
-class Fold:
+class Fold(EventFold):
     """The state of a run's events so far.  `meta_tx`/`meta_rx`: (channel, address) -> dccommsId from the
     meta (the fallbacks of transmitters learnt from enq/tx events); `header`: header bytes per dccommsId."""
 
@@ -158,6 +175,10 @@ class Fold:
         self.senders: dict[str, Sender] = {}                # transmitter dccommsId -> its frames
         self.channels: dict[object, ChannelState] = {}
         self.t_end: object = None           # None: no event yet
+        self._t_end_f = -math.inf           # t_end when it is a float
+        self._last_ch: object = None        # the channel of the last event, its state and its transmitters
+        self._c: ChannelState | None = None
+        self._ctx: dict[int, Sender] = {}
 
     def flow(self, name: str, src: str | None, dst: int | None, payload: int | None) -> int:
         """The id of flow `name`, a new one with these fields if it has none."""
@@ -184,7 +205,7 @@ class Fold:
 
     def frame(self, dev: str, seq: int) -> FrameState | None:
         s = self.senders.get(dev)
-        return s.frames.get(seq) if s is not None else None
+        return s.get(seq) if s is not None else None
 
     def _channel(self, ch: object) -> ChannelState:
         c = self.channels.get(ch)
@@ -209,176 +230,160 @@ class Fold:
     def rows(self, rows: list[Any], t9: list[Any]) -> None:
         """Frame events in order, each a row (t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, fifo,
         dist, implicit) (trace.events.Row; `dist` only tested for None, `fifo` unused), `t9[k]` the time
-        of row k's record."""
+        of row k's record: `event()` of each."""
         if len(rows) != len(t9):
             raise ValueError(f"{len(rows)} rows and {len(t9)} times")
-        flows = self.flows
-        dtx = self.tx
-        header = self.header
-        channels = self.channels
-        last_ch: object = None
-        c = ChannelState()
-        ctx: dict[int, Sender] = {}             # the channel's transmitters by source address
+        for k in range(len(rows)):
+            r: tuple[Any, ...] = rows[k]
+            self.event(t9[k], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[12] is not None,
+                       bool(r[13]))
+
+    def event(self, t: object, ev: str, ch: object, dev: str, src: int, dst: object, seq: int, size: int,
+              flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool) -> None:
+        """One frame event, its record's fields (`t` its time as the record says it, `dst` None if the
+        record had none, `has_dist` whether it had a distance): the definition of the metrics, per event.
+        The tracer calls it at once for a run's online summary (trace.tracer.EventFold); `rows` for a
+        trace read back."""
         t_end = self.t_end
-        t_end_f = t_end if isinstance(t_end, float) else -math.inf     # t_end when it is a float
-        k = 0
-        try:
-            for row in rows:
-                t: object = t9[k]
-                k += 1
-                r: tuple[Any, ...] = row
-                ev: str = r[1]
-                if isinstance(t, float) and isinstance(t_end, float):
-                    if t > t_end_f:
-                        t_end = t
-                        t_end_f = t
-                elif t_end is None or t > t_end:  # type: ignore[operator]
-                    t_end = t
-                    t_end_f = t if isinstance(t, float) else -math.inf
-                implicit: object = r[13]
-                if implicit and ev == "rx":
-                    continue        # handed to a modem that was not the addressee (no MAC): not a delivery
-                ch: object = r[2]
-                dev: str = r[3]
-                src: int = r[4]
-                seq: int = r[6]
-                size: int = r[7]
-                reason: str | None = r[10]
-                if ch is not last_ch or last_ch is None:
-                    c = channels.get(ch) or self._channel(ch)
-                    got = dtx.get(ch)
-                    if got is None:
-                        got = dtx[ch] = {}
-                    ctx = got
-                    last_ch = ch
-                if ev == "rx":
-                    c.delivered += 1
-                    at_tx = False
-                    got_s = ctx.get(src)
-                    snd = got_s if got_s is not None else self.sender(self.tx_dev(ch, src))
-                elif ev == "drop":
-                    de = c.drop_events
-                    de[reason] = de.get(reason, 0) + 1
-                    known = ctx.get(src)
-                    if known is not None:
-                        at_tx = dev == known.dev
-                    else:
-                        at_tx = reason in _TX_REASONS or (reason not in _RX_REASONS and r[12] is None)
-                    if known is not None:
-                        snd = known
-                    elif at_tx:
-                        snd = ctx[src] = self.sender(dev)
-                    else:
-                        snd = self.sender(self.tx_dev(ch, src))
+        if isinstance(t, float) and isinstance(t_end, float):
+            if t > self._t_end_f:
+                self.t_end = t
+                self._t_end_f = t
+        elif t_end is None or t > t_end:  # type: ignore[operator]
+            self.t_end = t
+            self._t_end_f = t if isinstance(t, float) else -math.inf
+        if implicit and ev == "rx":
+            return          # handed to a modem that was not the addressee (no MAC): not a delivery
+        c = self._c
+        ctx = self._ctx
+        if ch is not self._last_ch or c is None:
+            c = self._c = self.channels.get(ch) or self._channel(ch)
+            got = self.tx.get(ch)
+            if got is None:
+                got = self.tx[ch] = {}
+            ctx = self._ctx = got
+            self._last_ch = ch
+        if ev == "rx":
+            c.delivered += 1
+            at_tx = False
+            got_s = ctx.get(src)
+            snd = got_s if got_s is not None else self.sender(self.tx_dev(ch, src))
+        elif ev == "drop":
+            de = c.drop_events
+            de[reason] = de.get(reason, 0) + 1
+            known = ctx.get(src)
+            if known is not None:
+                at_tx = dev == known.dev
+            else:
+                at_tx = reason in _TX_REASONS or (reason not in _RX_REASONS and not has_dist)
+            if known is not None:
+                snd = known
+            elif at_tx:
+                snd = ctx[src] = self.sender(dev)
+            else:
+                snd = self.sender(self.tx_dev(ch, src))
+        else:
+            at_tx = True
+            got_s = ctx.get(src)
+            if got_s is None:
+                snd = ctx[src] = self.sender(dev)
+            elif got_s.dev == dev:
+                snd = got_s
+            else:               # the address was another transmitter's first
+                snd = self.sender(dev)
+            if ev == "tx":
+                c.sent += 1
+                c.bytes_on_air += size
+            else:
+                c.enqueued += 1
+        tx_dev = snd.dev
+        if kind != "data":
+            if ev == "tx":      # control frames only count as bytes on air of the flow they serve
+                c.ctrl_sent += 1
+                name = self._ctrl_flow(flow, seq, src, dst, ch, tx_dev)
+                m = self.flows[self.flow(name, tx_dev, None, None)]
+                m.ctrl_sent += 1
+                m.ctrl_bytes_on_air += size
+            return
+
+        f = snd.get(seq)
+        if f is None:
+            fdst: int = -1 if dst is None else dst  # type: ignore[assignment]
+            fl = self.flow(flow if flow is not None else tx_dev, tx_dev, fdst, None)
+            f = FrameState(tx_dev, seq, fl, ch, fdst)
+            snd.put(seq, f)
+            self.frames.append(f)
+        m = self.flows[f.flow]
+        if m.t_first is None:
+            m.t_first = t
+        m.t_last = t
+        if m.src is None:
+            m.src = tx_dev
+        if m.dst is None and f.dst >= 0:
+            m.dst = f.dst
+
+        if ev == "enq":
+            f.n_enq += 1
+            if f.t_enq is None:
+                f.t_enq = t
+            if m.t_first_enq is None:
+                m.t_first_enq = t
+            m.enqueued += 1
+            p = m.payload
+            m.payload_offered += p if p is not None else max(0, size - self.header.get(tx_dev, 0))
+        elif ev == "tx":
+            f.n_tx += 1
+            f.t_tx = t
+            if f.n_tx == 1:
+                m.unique_sent += 1
+                if seq > snd.max_seq:
+                    snd.max_seq = seq
+            m.sent += 1
+            m.data_bytes_on_air += size
+        elif ev == "rx":
+            if f.multi is None and (f.r_dev is None or f.r_dev == dev):
+                f.r_dev = dev
+                f.r_nrx += 1
+            else:
+                rc = f.receiver(dev)
+                if rc is None:
+                    f.r_nrx += 1
                 else:
-                    at_tx = True
-                    got_s = ctx.get(src)
-                    if got_s is None:
-                        snd = ctx[src] = self.sender(dev)
-                    elif got_s.dev == dev:
-                        snd = got_s
-                    else:               # the address was another transmitter's first
-                        snd = self.sender(dev)
-                    if ev == "tx":
-                        c.sent += 1
-                        c.bytes_on_air += size
-                    else:
-                        c.enqueued += 1
-                tx_dev = snd.dev
-                kind: str = r[9]
-                if kind != "data":
-                    if ev == "tx":      # control frames only count as bytes on air of the flow they serve
-                        c.ctrl_sent += 1
-                        flow: str | None = r[8]
-                        name = self._ctrl_flow(flow, seq, src, r[5], ch, tx_dev)
-                        m = flows[self.flow(name, tx_dev, None, None)]
-                        m.ctrl_sent += 1
-                        m.ctrl_bytes_on_air += size
-                    continue
-
-                dev_frames = snd.frames
-                f = dev_frames.get(seq)
-                if f is None:
-                    dst: object = r[5]
-                    fdst: int = -1 if dst is None else dst  # type: ignore[assignment]
-                    flow = r[8]
-                    fl = self.flow(flow if flow is not None else tx_dev, tx_dev, fdst, None)
-                    f = FrameState(tx_dev, seq, fl, ch, fdst)
-                    dev_frames[seq] = f
-                    self.frames.append(f)
-                m = flows[f.flow]
-                if m.t_first is None:
-                    m.t_first = t
-                m.t_last = t
-                if m.src is None:
-                    m.src = tx_dev
-                if m.dst is None and f.dst >= 0:
-                    m.dst = f.dst
-
-                if ev == "enq":
-                    f.n_enq += 1
-                    if f.t_enq is None:
-                        f.t_enq = t
-                    if m.t_first_enq is None:
-                        m.t_first_enq = t
-                    m.enqueued += 1
-                    p = m.payload
-                    m.payload_offered += p if p is not None else max(0, size - header.get(tx_dev, 0))
-                elif ev == "tx":
-                    f.n_tx += 1
-                    f.t_tx = t
-                    if f.n_tx == 1:
-                        m.unique_sent += 1
-                        if seq > snd.max_seq:
-                            snd.max_seq = seq
-                    m.sent += 1
-                    m.data_bytes_on_air += size
-                elif ev == "rx":
-                    if f.multi is None and (f.r_dev is None or f.r_dev == dev):
-                        f.r_dev = dev
-                        f.r_nrx += 1
-                    else:
-                        rc = f.receiver(dev)
-                        if rc is None:
-                            f.r_nrx += 1
-                        else:
-                            rc.n_rx += 1
-                    m.delivered += 1
-                    p = m.payload
-                    m.payload_delivered += p if p is not None else max(0, size - header.get(tx_dev, 0))
-                    t_enq = f.t_enq
-                    if t_enq is not None:
-                        d = float(t) - float(t_enq)  # type: ignore[arg-type]
-                        m.delays.append(d)
-                        if m.has_prev:
-                            m.jit_sum += abs(d - m.prev_delay)
-                            m.jit_n += 1
-                        m.prev_delay = d
-                        m.has_prev = True
-                else:   # drop
-                    fde = m.drop_events
-                    fde[reason] = fde.get(reason, 0) + 1
-                    if at_tx:
-                        f.n_txdrop += 1
-                        f.txdrop = reason
-                        f.txdrop_at = f.n_tx
-                    elif f.multi is None and (f.r_dev is None or f.r_dev == dev):
-                        f.r_dev = dev
-                        f.r_ndrop += 1
-                        f.r_reason = reason
-                        f.r_at = f.n_tx
-                    else:
-                        rc = f.receiver(dev)
-                        if rc is None:
-                            f.r_ndrop += 1
-                            f.r_reason = reason
-                            f.r_at = f.n_tx
-                        else:
-                            rc.n_drop += 1
-                            rc.reason = reason
-                            rc.at = f.n_tx
-        finally:
-            self.t_end = t_end
+                    rc.n_rx += 1
+            m.delivered += 1
+            p = m.payload
+            m.payload_delivered += p if p is not None else max(0, size - self.header.get(tx_dev, 0))
+            t_enq = f.t_enq
+            if t_enq is not None:
+                d = float(t) - float(t_enq)  # type: ignore[arg-type]
+                m.delays.append(d)
+                if m.has_prev:
+                    m.jit_sum += abs(d - m.prev_delay)
+                    m.jit_n += 1
+                m.prev_delay = d
+                m.has_prev = True
+        else:   # drop
+            fde = m.drop_events
+            fde[reason] = fde.get(reason, 0) + 1
+            if at_tx:
+                f.n_txdrop += 1
+                f.txdrop = reason
+                f.txdrop_at = f.n_tx
+            elif f.multi is None and (f.r_dev is None or f.r_dev == dev):
+                f.r_dev = dev
+                f.r_ndrop += 1
+                f.r_reason = reason
+                f.r_at = f.n_tx
+            else:
+                rc = f.receiver(dev)
+                if rc is None:
+                    f.r_ndrop += 1
+                    f.r_reason = reason
+                    f.r_at = f.n_tx
+                else:
+                    rc.n_drop += 1
+                    rc.reason = reason
+                    rc.at = f.n_tx
 
     def settle(self, end: object, horizon: float, limit: int) -> tuple[list[str], int, list[tuple[Any, ...]]]:
         """Final outcomes of every frame (into its flow's `drops`, `intended`, `in_flight`) and the conservation

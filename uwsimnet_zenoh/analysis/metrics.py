@@ -238,7 +238,7 @@ class Accumulator:
     `analyse()` on a trace and the online summary of `uwsimnet run` (a batch consumer of the tracer,
     `on_batch`), so the two give the same numbers for the same run.
 
-        acc = Accumulator(net.meta()); net.tracer.consume(acc.on_batch); net.run(); net.tracer.flush()
+        acc = Accumulator(net.meta()); acc.follow(net.tracer); net.run()
         a = acc.result()
 
     The per-event work is `fold.Fold` (compiled with the engine when `make` can); this class feeds it and
@@ -282,6 +282,12 @@ class Accumulator:
         if pending:
             self._pending = []
             self._fold.rows(pending, [r[0] for r in pending])
+
+    def follow(self, tracer: Any) -> None:
+        """Take a run's events as they happen: the fold is the tracer's `EventFold` (called at once, natively
+        when compiled, with no row built for it)."""
+        self._drain()
+        tracer.fold(self._fold)
 
     def on_batch(self, b: Any) -> None:
         """A batch consumer (trace.events.Tracer.consume): the events of a `Batch`, their records' times

@@ -273,8 +273,8 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
         meta = net.meta()
         meta.update(clock="realtime", world=world, duration=duration,
                     channels=sorted(net.channels), external_flows=sorted(external))
-        acc = Accumulator(meta)                 # the summary's metrics, online (batches: on the engine
-        net.tracer.consume(acc.on_batch)        # thread, one call per Tracer.batch events; read at the end)
+        acc = Accumulator(meta)                 # the summary's metrics, online (on the engine thread, at
+        acc.follow(net.tracer)                  # each event; read at the end)
         try:
             if trace is not None:
                 Path(trace).parent.mkdir(parents=True, exist_ok=True)

@@ -91,7 +91,7 @@ def simulate(scene, *, seed: int | None, duration: float | None, trace_path: Pat
     acc = None
     if metrics:
         acc = Accumulator(meta)
-        net.tracer.consume(acc.on_batch)
+        acc.follow(net.tracer)
     failed: BaseException | None = None
     with ExitStack() as files:
         jsonl = None

@@ -3,13 +3,15 @@ and the batches its consumers take.  A module of its own, compiled with the engi
 (uwsimnet_zenoh/_native.py): the engine calls `emit` several times a frame.  The sinks that write traces
 are in trace/events.py.
 
-The tracer has three kinds of listeners:
+The tracer has four kinds of listeners:
 
+- *event folds* (`Tracer.fold`, an `EventFold`) are called at once with each event's record fields, natively
+  when both are compiled: the online metrics' fold (analysis.fold.Fold, through `Accumulator.follow`);
 - *batch consumers* (`Tracer.consume`) get the events in batches (`Batch`: one row tuple per event, its
-  time rounded once for all of them), in order, at most `Tracer.batch` events late: the online metrics
-  (`analysis.Accumulator.on_batch`), the JSONL writer (`JsonlSink.write_batch`) and the columnar writer
-  (`ArrowSink.write_batch`).  The tracer appends each event once to the shared batch, a consumer does its
-  work per batch (vectorised where it can), so a run pays one append per event for all of them.  Whoever
+  time rounded once for all of them), in order, at most `Tracer.batch` events late: the JSONL writer
+  (`JsonlSink.write_batch`) and the columnar writer (`ArrowSink.write_batch`).  The tracer appends each
+  event once to the shared batch, a consumer does its work per batch (vectorised where it can), so a run
+  pays one append per event for all of them.  Whoever
   runs the network calls `Tracer.flush()` when the run ends (app/virtual.py does, on an interrupt and an
   error too);
 - *event listeners* (`Tracer.listen`) are called at once with the event's fields, `fn(t, ev, ch, dev,
@@ -26,6 +28,8 @@ import math
 from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import Any, Final
+
+from mypy_extensions import mypyc_attr
 
 from ..kernel.frame import Frame
 
@@ -143,6 +147,18 @@ class Batch:
 BatchConsumer = Callable[[Batch], None]
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
+class EventFold:
+    """What takes every event at once, natively (`Tracer.fold`): the online metrics' fold
+    (analysis.fold.Fold) is one.  A class rather than a callback so that the compiled tracer calls the
+    compiled fold directly, with the event's fields and no row built for it; the arguments are the
+    record's fields (`t` rounded as the record says it, `has_dist` whether the record has a distance)."""
+
+    def event(self, t: object, ev: str, ch: object, dev: str, src: int, dst: object, seq: int, size: int,
+              flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool) -> None:
+        raise NotImplementedError
+
+
 BATCH: Final = 4096
 """Events per batch handed to the batch consumers."""
 
@@ -152,8 +168,10 @@ class Tracer:
         self.sinks: list[Callable[[Record], None]] = []
         self.listeners: list[EventListener] = []
         self.consumers: list[BatchConsumer] = []
+        self.folds: list[EventFold] = []
         self.batch = batch
         self._rows: list[Row] | None = None     # None: no batch consumer, each event counted at once
+        self._t9: list[Any] = []                # the rows' record times, when the folds made them
         self._rows_only = True                  # no event listener nor record sink
         self._counts: dict[str, dict[str | None, int]] = {}     # ev -> reason -> events (but the three below)
         self._n_enq = 0                         # enq, tx and rx events without a reason (nearly all of them):
@@ -171,6 +189,10 @@ class Tracer:
         self.listeners.append(fn)
         self._rows_only = False
 
+    def fold(self, f: EventFold) -> None:
+        """An event fold: `f.event(...)` called at once with each event's record fields."""
+        self.folds.append(f)
+
     def consume(self, fn: BatchConsumer) -> None:
         """A batch consumer: called with each `Batch` of events, in order, when `batch` events are
         pending and at `flush()`."""
@@ -185,6 +207,14 @@ class Tracer:
         handed to a modem that is not its addressee.  (`t`, `dist` and `implicit` are taken as given,
         compiled or not.)"""
         rows = self._rows
+        if self.folds:
+            t9 = _round(t, 1e9, 9) if type(t) is float else round(t, 9)
+            has_dist = dist is not None
+            for f in self.folds:
+                f.event(t9, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
+                        reason, has_dist, bool(implicit))
+            if rows is not None:
+                self._t9.append(t9)             # the batch's t9 made once (`flush`)
         if rows is None:
             self._count(ev, reason)
         else:
@@ -208,9 +238,11 @@ class Tracer:
         if not rows:
             return
         self._rows = []
+        t9 = self._t9
+        self._t9 = []
         for r in rows:
             self._count(r[1], r[10])
-        b = Batch(rows)
+        b = Batch(rows, t9 if len(t9) == len(rows) else None)   # a fold added within the batch: computed
         for fn in self.consumers:
             fn(b)
 
