@@ -17,6 +17,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from uwsimnet_zenoh.analysis import analyse, read_trace, report_json
 from uwsimnet_zenoh.app.virtual import load_scene_file, simulate
@@ -121,6 +123,29 @@ def test_fast_lines_are_json_lines(t, dist):
         sink.flush()
         ref.write(REF(events.record(t, "drop", 2, "d\u00e9v\u2028", frame, reason, fifo, dist)) + "\n")
         assert fast.getvalue().decode("utf-8") == ref.getvalue()
+
+
+_FLOATS = st.one_of(
+    st.floats(allow_nan=False, allow_infinity=False, min_value=0.0, max_value=2e6),
+    st.floats(min_value=0.0, max_value=1e-3), st.floats(min_value=1e14, max_value=1e17),
+    st.integers(0, 10**15).map(lambda k: k / 1e9), st.floats(), st.integers(-5, 10**7))
+_NAMES = st.text(st.characters(codec="utf-8"), max_size=6)
+
+
+@settings(max_examples=400, deadline=None)
+@given(rows=st.lists(st.tuples(
+    _FLOATS, st.sampled_from(["enq", "tx", "rx", "drop"]), st.integers(0, 300), _NAMES, st.integers(0, 255),
+    st.integers(0, 255), st.integers(0, 2**40), st.integers(0, 10**6), st.none() | _NAMES, _NAMES,
+    st.none() | _NAMES, st.none() | st.integers(0, 10**6), st.none() | _FLOATS, st.booleans()), max_size=8))
+def test_batches_are_written_as_json_writes_their_records(rows):
+    """Any batch of rows (the tracer's types, any finite time, any distance or name): the JSONL writer's
+    batch path writes, byte for byte, what Python's json writes of each row's record."""
+    rows = [r for r in rows if math.isfinite(r[0])]
+    t9 = [round(r[0], 9) for r in rows]
+    fast = io.BytesIO()
+    JsonlSink(fast).write_batch(events.Batch(rows, t9))
+    assert fast.getvalue().decode("utf-8") == "".join(REF(events.finite(events._row_record(t9[k], rows[k]))) + "\n"
+                                                      for k in range(len(rows)))
 
 
 def test_batched_lines_keep_their_order_around_fallbacks():
