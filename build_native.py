@@ -74,7 +74,8 @@ def main(argv: list[str]) -> int:
         return 0
     if _native.stale_reason() is None:
         return 0                                    # up to date
-    sources = _native.digests()                     # what is compiled (an edit during the build: stale)
+    stats = _native.stats()                         # what is compiled (an edit during the build: stale)
+    sources = _native.digests()
     if "--force" not in argv and FAILED.exists() and json.loads(FAILED.read_text()) == sources:
         return 0                                    # failed with these sources already: said then
     clean()                                         # a failed build leaves no extension behind
@@ -87,7 +88,8 @@ def main(argv: list[str]) -> int:
         print(f"uwsimnet: the engine runs as pure Python ({code}; {LOG})")
         return 0
     Path(_native.MANIFEST).write_text(json.dumps(
-        {"suffix": importlib.machinery.EXTENSION_SUFFIXES[0], "mypy": MYPY, "modules": sources}, indent=1) + "\n")
+        {"suffix": importlib.machinery.EXTENSION_SUFFIXES[0], "mypy": MYPY, "modules": sources,
+         "stat": stats}, indent=1) + "\n")
     print(f"uwsimnet: compiled {len(_native.MODULES)} engine modules with mypyc in {time.monotonic() - t0:.0f} s")
     return 0
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from decimal import Decimal, localcontext
 
@@ -180,3 +181,23 @@ def test_per_grows_with_size(r: float, size: int) -> None:
     d = np.array([0.0, 0.5, 1.0])
     small, big = model.per(d, size), model.per(d, size + 1)
     assert (small <= big).all() and (big <= 1).all() and small[0] == 0.0
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.floats(min_value=0.0, allow_nan=False, allow_infinity=False).map(repr),
+                 st.from_regex(r"\A[ \t]?(?:[0-9]{1,4}\.?[0-9]{0,3}|\.[0-9]{1,3})(?:[eE][+-]?[0-9]{1,3})?[ \t]?\Z"),
+                 st.sampled_from(["-1", "1e", "inf", "nan", "1_0", "+1", "0x1", "1e-3*m", "", " ", "1..2", "(1)"])),
+       st.sampled_from(["bit", "byte", "packet"]))
+def test_a_plain_number_is_the_constant_phy_expr_folds(text: str, unit: str) -> None:
+    """A rate that is one number is read without phy.expr (and numpy): the same constant, the same
+    losses, the same errors as the compiled expression gives."""
+    try:
+        ex = compile_expr(text)
+    except ExprError as e:
+        with pytest.raises(ExprError, match=re.escape(str(e))):
+            RateErrorModel(text, unit)  # type: ignore[arg-type]
+        return
+    model, ref = RateErrorModel(text, unit), RateErrorModel(ex, unit)  # type: ignore[arg-type]
+    assert model.lossless == ref.lossless and repr(model) == repr(ref)
+    assert model.per(D, 40).tolist() == ref.per(D, 40).tolist()
+    assert model.expr == ex

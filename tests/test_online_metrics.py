@@ -380,6 +380,25 @@ def test_run_trace_is_the_listener_trace(tmp_path):
     assert (tmp_path / "b.jsonl").read_bytes() == (tmp_path / "e.jsonl").read_bytes()
 
 
+def test_mean_is_numpys():
+    import numpy as np
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from uwsimnet_zenoh.analysis.metrics import mean
+
+    @settings(max_examples=300, deadline=None)
+    @given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=600))
+    def check(xs):
+        assert mean(xs) == float(np.mean(np.array(xs)))
+
+    check()
+    rng = np.random.default_rng(4)          # past the 128-value blocks of numpy's pairwise sum, and its halves
+    for n in (7, 8, 9, 127, 128, 129, 136, 1000, 4097, 70001):
+        d = rng.exponential(0.5, n) * rng.choice([1e-3, 1.0, 1e3], n)
+        assert mean(d.tolist()) == float(np.mean(d))
+
+
 def test_median_p95_are_numpys():
     import numpy as np
     from hypothesis import given, settings

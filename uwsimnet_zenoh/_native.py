@@ -20,7 +20,6 @@ none of the build may run.  The compiled and the pure engine give the same trace
 
 from __future__ import annotations
 
-import hashlib
 import importlib.machinery
 import importlib.util
 import json
@@ -37,13 +36,14 @@ MODULES: tuple[str, ...] = (
     "uwsimnet_zenoh.traffic.flow",
     "uwsimnet_zenoh.phy.modem",
     "uwsimnet_zenoh.phy.channel",
+    "uwsimnet_zenoh.mobility.trajectory",
     "uwsimnet_zenoh.mac.base",
     "uwsimnet_zenoh.mac.nomac",
     "uwsimnet_zenoh.engine.network",
     "uwsimnet_zenoh.analysis.fold",
 )
 """Compiled with mypyc when `make` can (the per-frame path: scheduler, frame, the tracer, flows, modem,
-channel, the MAC base and NOMAC, the network, and the metrics' fold).  Their classes become native: no
+channel, the pose table, the MAC base and NOMAC, the network, and the metrics' fold).  Their classes become native: no
 monkeypatching them, and a class that Python code subclasses (Mac, OneFrameMac, NoMac) says
 `@mypyc_attr(allow_interpreted_subclasses=True)`."""
 
@@ -68,6 +68,8 @@ def extension(module: str) -> str:
 
 
 def digest(path: str) -> str:
+    import hashlib  # only for a source whose size or time changed: a start reads no source otherwise
+
     with open(path, "rb") as f:
         return hashlib.sha256(f.read()).hexdigest()
 
@@ -75,6 +77,16 @@ def digest(path: str) -> str:
 def digests() -> dict[str, str]:
     """The SHA-256 of every source of the list, as it is on disk now."""
     return {m: digest(source(m)) for m in MODULES}
+
+
+def stats() -> dict[str, list[int]]:
+    """(size, mtime in ns) of every source of the list: as for Python's own .pyc, a source whose size and
+    time are those of the build is the one compiled, and only a changed one is hashed."""
+    out = {}
+    for m in MODULES:
+        st = os.stat(source(m))
+        out[m] = [st.st_size, st.st_mtime_ns]
+    return out
 
 
 def stale_reason() -> str | None:
@@ -86,7 +98,7 @@ def stale_reason() -> str | None:
         return "not compiled"
     if built.get("suffix") != importlib.machinery.EXTENSION_SUFFIXES[0]:
         return "compiled for another interpreter"
-    if built.get("modules") != digests():
+    if built.get("stat") != stats() and built.get("modules") != digests():
         return "a source changed since the build (stale)"
     missing = [m for m in (*MODULES, GROUP + "__mypyc") if not os.path.exists(extension(m))]
     if missing:

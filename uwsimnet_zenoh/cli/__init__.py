@@ -9,6 +9,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 worth a second thread.  The variable is inherited by what a command starts, as any setting of its
 environment; set it yourself to have more."""
 
+os.environ.setdefault("PYDANTIC_DISABLE_PLUGINS", "__all__")
+"""Before the scene's models are built: pydantic looks for its plugins (observers of validation, such as
+logfire) by reading the entry points of every installed distribution, 20-30 ms of each start, and a scene
+load has nothing for them to observe.  Inherited alike; set it yourself (empty: none disabled) to have
+them."""
+
 from .startup import importing  # noqa: E402 - after the variable
 
 with importing():       # and each command imports what it runs the same way (start-up time)

@@ -3,15 +3,28 @@
 A `PoseTable` is the one place the channel asks for positions.  Scripted vehicles are evaluated exactly
 at the query time (piecewise-linear between waypoints, holding after the last); vehicles whose pose
 comes from outside (HIL) keep the last sample received, extrapolated with its velocity if one was
-given.  Positions of all vehicles come back as one (n, 3) array so the channel can compute distances to
-every receiver in a single numpy expression.
+given.  The table is plain Python floats: `points(t)` gives every position as an (x, y, z) tuple, which
+is all a small channel reads, and `positions(t)` the same doubles as an (n, 3) numpy array for the
+channels and tools that compute on arrays (numpy is imported only then: its import is a third of a
+small run's start-up).
 """
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
+
+Point = tuple[float, float, float]
+ORIGIN: Point = (0.0, 0.0, 0.0)
+
+
+def _point(p: Sequence[float]) -> Point:
+    x, y, z = p
+    return (float(x), float(y), float(z))
 
 
 class Trajectory:
@@ -19,45 +32,50 @@ class Trajectory:
 
     __slots__ = ("t", "p")
 
-    def __init__(self, waypoints: Sequence[tuple[float, float, float, float]]) -> None:
-        arr = np.asarray(waypoints, dtype=float).reshape(-1, 4)
-        if len(arr) == 0:
+    def __init__(self, waypoints: Sequence[Sequence[float]]) -> None:
+        rows = [tuple(float(v) for v in w) for w in waypoints]
+        if not rows:
             raise ValueError("a trajectory needs at least one waypoint")
-        if np.any(np.diff(arr[:, 0]) <= 0):
+        if any(len(r) != 4 for r in rows):
+            raise ValueError("a waypoint is (t, x, y, z)")
+        if any(not b[0] > a[0] for a, b in zip(rows, rows[1:], strict=False)):
             raise ValueError("waypoint times must increase")
-        self.t = arr[:, 0].copy()
-        self.p = arr[:, 1:].copy()
+        self.t: list[float] = [r[0] for r in rows]
+        self.p: list[Point] = [(r[1], r[2], r[3]) for r in rows]
 
-    def position(self, t: float) -> np.ndarray:
+    def position(self, t: float) -> Point:
         ts = self.t
         if t <= ts[0]:
             return self.p[0]
         if t >= ts[-1]:
             return self.p[-1]
-        i = int(np.searchsorted(ts, t, side="right")) - 1
+        i = bisect_right(ts, t) - 1
         f = (t - ts[i]) / (ts[i + 1] - ts[i])
-        return self.p[i] + f * (self.p[i + 1] - self.p[i])
+        (x0, y0, z0), (x1, y1, z1) = self.p[i], self.p[i + 1]
+        return (x0 + f * (x1 - x0), y0 + f * (y1 - y0), z0 + f * (z1 - z0))
 
     @property
     def end(self) -> float:
-        return float(self.t[-1])
+        return self.t[-1]
 
 
 class PoseTable:
-    """Latest pose per vehicle, by index; `positions(t)` is the (n, 3) array at time t."""
+    """Latest pose per vehicle, by index: `points(t)` as tuples, `positions(t)` as an (n, 3) array."""
 
     def __init__(self, names: Sequence[str]) -> None:
         self.names = list(names)
         self.index = {n: i for i, n in enumerate(self.names)}
         n = len(self.names)
-        self._pos = np.zeros((n, 3))
-        self._vel = np.zeros((n, 3))
-        self._t_sample = np.zeros(n)
-        self.known = np.ones(n, dtype=bool)
+        self._pos: list[Point] = [ORIGIN] * n
+        self._vel: list[Point] = [ORIGIN] * n
+        self._t_sample: list[float] = [0.0] * n
+        self.known: list[bool] = [True] * n
         self._scripted: dict[int, Trajectory] = {}
         self._external: set[int] = set()
-        self._ext_idx = np.zeros(0, dtype=np.intp)      # the external vehicles' indices, sorted (numpy)
+        self._ext_idx: list[int] = []                   # the external vehicles' indices, sorted
         self._cache_t = float("nan")
+        self._cache: list[Point] = self._pos
+        self._array: tuple[int, float, np.ndarray] | None = None     # (version, t, positions(t))
         self.pull: Callable[[float], None] | None = None
         """Called with t before positions at t are read: a source that applies pose samples lazily (the
         Zenoh broker keeps the newest sample per vehicle and applies it only when the geometry is needed)
@@ -67,8 +85,7 @@ class PoseTable:
         """Bumped on every change; with `moving` False, positions are constant until it changes."""
 
     def set_static(self, name: str, p: Sequence[float]) -> None:
-        i = self.index[name]
-        self._pos[i] = p
+        self._pos[self.index[name]] = _point(p)
         self._changed()
 
     def _changed(self) -> None:
@@ -84,7 +101,7 @@ class PoseTable:
         """The vehicle is positioned only by samples from outside; unknown until the first one."""
         i = self.index[name]
         self._external.add(i)
-        self._ext_idx = np.array(sorted(self._external), dtype=np.intp)
+        self._ext_idx = sorted(self._external)
         self._scripted.pop(i, None)
         self.known[i] = False
         self._changed()
@@ -93,30 +110,50 @@ class PoseTable:
         """A pose sample (from Zenoh, a control command or a kinematic model) at simulation time t."""
         i = self.index[name]
         self._scripted.pop(i, None)
-        self._pos[i] = p
-        self._vel[i] = v if v is not None else (0.0, 0.0, 0.0)
-        self._t_sample[i] = t
+        self._pos[i] = _point(p)
+        self._vel[i] = ORIGIN if v is None else _point(v)
+        self._t_sample[i] = float(t)
         self.known[i] = True
         self._changed()
 
-    def positions(self, t: float) -> np.ndarray:
-        """All positions at time t (scripted ones exact, external ones extrapolated by velocity)."""
+    def points(self, t: float) -> list[Point]:
+        """All positions at time t (scripted ones exact, external ones p + v * max(0, t - t_sample); an
+        unknown one keeps its unused stored position).  Shared: the caller must not change the list."""
         if self.pull is not None:
             self.pull(t)
         if t == self._cache_t:
             return self._cache
-        pos = self._pos.copy() if (self._scripted or self._external) else self._pos
-        for i, traj in self._scripted.items():
-            pos[i] = traj.position(t)
-        ext = self._ext_idx
-        if len(ext):
-            # one numpy expression for every external vehicle (the same doubles as one at a time:
-            # p + v * max(0, t - t_sample)); an unknown one keeps its (unused) stored position
-            ext = ext[self.known[ext]]
-            dt = np.maximum(t - self._t_sample[ext], 0.0)
-            pos[ext] = self._pos[ext] + self._vel[ext] * dt[:, None]
+        if not (self._scripted or self._external):
+            pos = self._pos
+        else:
+            pos = list(self._pos)
+            for i, traj in self._scripted.items():
+                pos[i] = traj.position(t)
+            known = self.known
+            ts = self._t_sample
+            vel = self._vel
+            for i in self._ext_idx:
+                if known[i]:
+                    dt = t - ts[i]
+                    if dt < 0.0:                # max(0, t - t_sample): a sample from the future holds
+                        dt = 0.0
+                    p = pos[i]
+                    v = vel[i]
+                    pos[i] = (p[0] + v[0] * dt, p[1] + v[1] * dt, p[2] + v[2] * dt)
         self._cache, self._cache_t = pos, t
         return pos
 
-    def position(self, name: str, t: float) -> np.ndarray:
-        return self.positions(t)[self.index[name]]
+    def positions(self, t: float) -> np.ndarray:
+        """`points(t)` as an (n, 3) float64 array (the same doubles), kept while nothing changes."""
+        pts = self.points(t)
+        a = self._array
+        if a is not None and a[0] == self.version and (a[1] == t or not self.moving):
+            return a[2]
+        import numpy as np
+
+        arr = np.array(pts, dtype=np.float64).reshape(len(pts), 3)
+        self._array = (self.version, t, arr)
+        return arr
+
+    def position(self, name: str, t: float) -> Point:
+        return self.points(t)[self.index[name]]

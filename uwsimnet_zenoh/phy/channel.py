@@ -1,8 +1,9 @@
 """The shared medium: who hears a transmission, when, and whether it survives.
 
 Design for speed (issue #2): a transmission is handled in ONE call at its first bit.  Distances,
-propagation delays and range checks for every listener are computed together with numpy and kept in a
-`Transmission` record (arrival and end time per listener).  Only receivers that must learn the outcome
+propagation delays and range checks for every listener are computed together (as Python lists on a small
+channel, with numpy on a large one) and kept in a `Transmission` record (arrival and end time per
+listener).  Only receivers that must learn the outcome
 (the addressee, every listener for broadcast, and MACs that overhear) get an event, at the end of their
 reception.  Collisions are then decided by looking at the few transmissions still in the air log: two
 receptions at the same listener whose intervals overlap are both lost; a half-duplex listener's own
@@ -17,14 +18,14 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Final, cast
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, Final, cast
 
 from ..kernel.frame import BROADCAST, Frame
 from .interference import classify, min_sinr_db
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from ..kernel.scheduler import Scheduler
     from ..mobility.trajectory import PoseTable
     from ..trace.tracer import Tracer
@@ -38,16 +39,15 @@ overlap by ~1e-16 s, which must not count as a collision."""
 
 
 LIST_SLOTS: Final = 512
-"""Up to this many listener slots the geometry is also kept as Python lists: the per-frame path reads a few
-slots one by one (the addressee, the log's transmissions at one slot), and a list item is a Python float
-read in a few ns where a numpy scalar costs ~100 ns to make and more to add or compare.  The values are the
-same doubles either way (the same additions give the same results), so the choice changes no outcome."""
+"""Up to this many listener slots the geometry is Python lists, computed in a loop, and numpy is not even
+imported (a third of a small run's start-up): the per-frame path reads a few slots one by one (the
+addressee, the log's transmissions at one slot), and a list item is a Python float read in a few ns where
+a numpy scalar costs ~100 ns to make and more to add or compare.  Above it, numpy arrays.  Both compute the
+same doubles in the same order (`_geometry_lists`, `_geometry_arrays`), so the choice changes no outcome."""
 
-Slots = list[float] | np.ndarray
-"""Per-slot values: a Python list on a small channel (LIST_SLOTS), else the numpy array itself."""
-Geometry = tuple[np.ndarray, np.ndarray, np.ndarray, float, Slots, Slots, list[bool] | np.ndarray]
-"""What `Channel._geometry` gives: distance, delay, reach (arrays), the longest delay, then the same three
-as `Slots`."""
+Geometry = tuple[Any, Any, Any, float]
+"""What `Channel._geometry` gives: distance, delay, reach per slot (lists on a small channel, else
+arrays) and the longest finite delay."""
 
 GEO_CACHE_SLOTS: Final = 8_000_000
 """At most this many (sender, listener) pairs of cached geometry per channel (17 bytes each): every sender
@@ -57,29 +57,25 @@ of a small network, ~800 of 10 000 on one channel (the others' geometry is compu
 class Transmission:
     """One frame in the air: its arrival/end time at every listener slot (inf = never arrives).
 
-    Arrival at slot j is `t0 + delay[j]`, the end `t0 + delay[j] + dur` (the same doubles as the arrays
-    `arr` and `end`, which are built only when asked for: the binary rule and carrier sense read the
-    few slots they need from the shared `delay` array of the sender's geometry, `dl` its list when the
-    channel is small (LIST_SLOTS), else the array itself).  `own` is the sender's slot on this channel if
+    Arrival at slot j is `t0 + dl[j]`, the end `t0 + dl[j] + dur` (the same doubles as the arrays `arr`
+    and `end`, which are built only when asked for: the binary rule and carrier sense read the few slots
+    they need from the shared delays `dl` of the sender's geometry, a list when the channel is small
+    (LIST_SLOTS), else an array; `dd` the distances alike).  `own` is the sender's slot on this channel if
     it listens there (half duplex: its own signal occupies its receiver), else -1."""
 
-    __slots__ = ("frame", "sender", "t0", "dur", "delay", "dl", "own", "_arr", "_end", "max_end", "dist", "dd",
-                 "pow", "acq")
+    __slots__ = ("frame", "sender", "t0", "dur", "dl", "own", "_arr", "_end", "max_end", "dd", "pow", "acq")
 
-    def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, delay: np.ndarray,
-                 dist: np.ndarray, max_end: float, dl: list[float] | np.ndarray | None = None,
-                 own: int = -1, dd: list[float] | np.ndarray | None = None) -> None:
+    def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, dl: list[float] | np.ndarray,
+                 dd: list[float] | np.ndarray, max_end: float, own: int = -1) -> None:
         self.frame = frame
         self.sender = sender
         self.t0 = t0
         self.dur = dur
-        self.delay = delay
-        self.dl = delay if dl is None else dl
+        self.dl = dl
         self.own = own
         self._arr: np.ndarray | None = None
         self._end: np.ndarray | None = None
-        self.dist = dist
-        self.dd = dist if dd is None else dd     # the distances as `dl` has the delays (a list when small)
+        self.dd = dd
         self.max_end = max_end
         self.pow: np.ndarray | None = None    # received power per listener slot, linear (SINR mode only)
         self.acq: dict[int, bool] | None = None   # slot -> acquired (SINR mode, capture "first" only)
@@ -101,7 +97,9 @@ class Transmission:
     @property
     def arr(self) -> np.ndarray:
         if self._arr is None:
-            self._arr = self.delay + self.t0
+            import numpy as np
+
+            self._arr = np.asarray(self.dl, dtype=np.float64) + self.t0
         return self._arr
 
     @property
@@ -134,14 +132,14 @@ class Channel:
         self.poses = poses
         self.tracer = tracer
         self.listeners: list[Modem | None] = []   # slot -> modem (None once detached; slots never move)
-        self._veh = np.zeros(0, dtype=np.intp)      # slot -> vehicle index in the pose table
-        self._alive = np.zeros(0, dtype=bool)
+        self._veh: list[int] = []                   # slot -> vehicle index in the pose table
+        self._alive: list[bool] = []
         self._by_addr: dict[int, int] = {}
         self._overhearing: list[int] = []
         self.log: deque[Transmission] = deque()
         self._members = 0                           # bumped on attach/detach (invalidates geometry)
         self._geo_cache: dict[str, tuple[int, int, Geometry]] = {}
-        self._slots: tuple | None = None            # (pose version, members, positions, alive & known)
+        self._slots: tuple | None = None            # (pose version, members, slot vehicles, alive & known)
         self._longest = 0.0
         self.transmissions = 0
         self._end_at: Callable[[Transmission, int, bool, bool], None] = self._reception_end    # bound once
@@ -151,8 +149,8 @@ class Channel:
     def attach(self, modem: Modem) -> int:
         slot = len(self.listeners)
         self.listeners.append(modem)
-        self._veh = np.append(self._veh, modem.vehicle_index)
-        self._alive = np.append(self._alive, True)
+        self._veh.append(modem.vehicle_index)
+        self._alive.append(True)
         self._by_addr[modem.address] = slot
         if modem.overhears:                 # slots only grow: the list stays in slot order
             self._overhearing.append(slot)
@@ -179,9 +177,8 @@ class Channel:
 
     # -- the per-frame path --------------------------------------------------------------------
     def _geometry(self, sender: Modem, now: float) -> Geometry:
-        """Distance, propagation delay (inf where out of range) and reach from `sender` to every slot, the
-        longest finite delay, then the same three as Python lists on a small channel (LIST_SLOTS; else the
-        arrays again).
+        """Distance, propagation delay (inf where out of range) and reach from `sender` to every slot, and
+        the longest finite delay: Python lists on a small channel (LIST_SLOTS), else numpy arrays.
 
         With no vehicle moving these only change with membership, so they are cached per sender."""
         poses = self.poses
@@ -190,20 +187,80 @@ class Channel:
             hit = self._geo_cache.get(key)
             if hit is not None and hit[0] == poses.version and hit[1] == self._members:
                 return hit[2]
-        pos = poses.positions(now)
-        known = poses.known
+        n = len(self._veh)
+        geo = self._geometry_lists(sender, now) if n <= LIST_SLOTS else self._geometry_arrays(sender, now)
+        if not poses.moving:
+            cache = self._geo_cache
+            if (len(cache) + 1) * n > GEO_CACHE_SLOTS:    # bounded: forget the oldest senders
+                for old in list(cache)[:max(1, len(cache) // 4)]:
+                    del cache[old]
+                    self._pow_cache.pop(old, None)
+            cache[key] = (poses.version, self._members, geo)
+        return geo
+
+    def _geometry_lists(self, sender: Modem, now: float) -> Geometry:
+        """A small channel's geometry, one slot at a time.  The distance is sqrt((dx² + dz²) + dy²): the
+        order in which numpy's einsum summed the squares (its SIMD lanes), kept by both paths so that
+        traces stay what they were; the delay min_prop + per_m * d, as numpy computes it."""
+        pts = self.poses.points(now)
+        known = self.poses.known
+        si = sender.vehicle_index
+        sx, sy, sz = pts[si]
+        src_known = known[si]
+        lo = sender.min_distance
+        hi = sender.max_distance
+        base = self.min_prop_s
+        per_m = self.prop_s_per_m
+        own = sender.rx_slot if sender.rx_channel is self else -1
         veh = self._veh
-        if poses.moving:
-            slot_pos = pos[veh]
-            slot_ok = self._alive & known[veh]
-        else:                                 # the listeners' positions: one copy while nothing changes
-            sl = self._slots
-            if sl is None or sl[0] != poses.version or sl[1] != self._members:
-                sl = self._slots = (poses.version, self._members, pos[veh], self._alive & known[veh])
-            slot_pos, slot_ok = sl[2], sl[3]
-        diff = slot_pos - pos[sender.vehicle_index]
-        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        if not known[sender.vehicle_index]:
+        alive = self._alive
+        dist: list[float] = []
+        delay: list[float] = []
+        ok: list[bool] = []
+        longest = 0.0
+        for k in range(len(veh)):
+            v = veh[k]
+            x, y, z = pts[v]
+            dx = x - sx
+            dy = y - sy
+            dz = z - sz
+            d = math.sqrt((dx * dx + dz * dz) + dy * dy)
+            reached = src_known and alive[k] and known[v] and d <= hi and (lo <= 0 or d >= lo)
+            ok.append(reached)
+            if k == own:                      # half duplex: my own signal occupies my receiver
+                dist.append(0.0)
+                delay.append(0.0)
+            elif reached:
+                dist.append(d)
+                t = base + per_m * d
+                delay.append(t)
+                if t > longest:
+                    longest = t
+            else:
+                dist.append(d)
+                delay.append(INF)
+        return dist, delay, ok, longest
+
+    def _geometry_arrays(self, sender: Modem, now: float) -> Geometry:
+        """A large channel's geometry with numpy: the same doubles as `_geometry_lists`."""
+        import numpy as np
+
+        poses = self.poses
+        pos = poses.positions(now)
+        sl = self._slots
+        if sl is None or sl[0] != poses.version or sl[1] != self._members:
+            veh = np.array(self._veh, dtype=np.intp)
+            sl = self._slots = (poses.version, self._members, veh,
+                                np.array(self._alive, dtype=bool) & np.array(poses.known, dtype=bool)[veh],
+                                None if poses.moving else pos[veh])
+        veh, slot_ok, slot_pos = sl[2], sl[3], sl[4]
+        diff = (pos[veh] if slot_pos is None else slot_pos) - pos[sender.vehicle_index]
+        dx, dy, dz = diff[:, 0], diff[:, 1], diff[:, 2]
+        d2 = dx * dx
+        d2 += dz * dz
+        d2 += dy * dy
+        dist = np.sqrt(d2)
+        if not poses.known[sender.vehicle_index]:
             ok = np.zeros(len(veh), dtype=bool)
         elif sender.min_distance > 0:
             ok = slot_ok & (dist >= sender.min_distance) & (dist <= sender.max_distance)
@@ -213,21 +270,7 @@ class Channel:
         if sender.rx_channel is self:         # half duplex: my own signal occupies my receiver
             delay[sender.rx_slot] = 0.0
             dist[sender.rx_slot] = 0.0
-        # the longest finite delay (the own slot's 0 included): reach of the transmission
-        max_delay = float(np.max(delay, where=ok, initial=0.0))
-        geo: Geometry
-        if len(veh) <= LIST_SLOTS:
-            geo = (dist, delay, ok, max_delay, dist.tolist(), delay.tolist(), ok.tolist())
-        else:
-            geo = (dist, delay, ok, max_delay, dist, delay, ok)
-        if not poses.moving:
-            cache = self._geo_cache
-            if (len(cache) + 1) * len(veh) > GEO_CACHE_SLOTS:    # bounded: forget the oldest senders
-                for old in list(cache)[:max(1, len(cache) // 4)]:
-                    del cache[old]
-                    self._pow_cache.pop(old, None)
-            cache[key] = (poses.version, self._members, geo)
-        return geo
+        return dist, delay, ok, float(np.max(delay, where=ok, initial=0.0))
 
     def transmit(self, sender: Modem, frame: Frame, dur: float) -> None:
         """First bit of `frame` leaves `sender` now; work out every listener's reception."""
@@ -240,9 +283,9 @@ class Channel:
         if dur > self._longest:
             self._longest = dur
 
-        dist, delay, ok, max_delay, distl, dl, okl = self._geometry(sender, now)
+        dist, delay, ok, max_delay = self._geometry(sender, now)
         own = sender.rx_slot if sender.rx_channel is self else -1
-        tx = Transmission(frame, sender, now, dur, delay, dist, now + dur + max_delay, dl, own, distl)
+        tx = Transmission(frame, sender, now, dur, delay, dist, now + dur + max_delay, own)
         sinr = self.sinr
         if sinr:
             tx.pow = self._powers(sender, dist)
@@ -252,12 +295,12 @@ class Channel:
             j = self._by_addr.get(frame.dst, -1)
             if j < 0 or j == own:
                 return
-            if not okl[j]:
+            if not ok[j]:
                 self._unreachable(sender, frame, j, now, dist)
                 return
             err = sender.error
             per = 0.0 if getattr(err, "lossless", False) is True else float(err.per(dist[j:j + 1], frame.size)[0])
-            end = float(dl[j]) + now + dur          # = (delay + now + dur)[j], the same double
+            end = float(delay[j]) + now + dur          # = (delay + now + dur)[j], the same double
             if sinr:
                 self.sched.at(end, self._end_sinr_at, tx, j, sender.loss_random(), per, True)
             else:
@@ -274,23 +317,35 @@ class Channel:
         if not targets:
             return
 
-        reach = ok[targets]
-        pers = sender.error.per(dist[targets], frame.size) if reach.any() else None
+        if isinstance(ok, list):
+            reach: Any = [ok[j] for j in targets]
+            far: Any = [dist[j] for j in targets]
+        else:
+            reach = ok[targets]
+            far = dist[targets]
+        err = sender.error
+        if not any(reach):
+            pers: Any = None
+        elif getattr(err, "lossless", False) is True:
+            pers = [0.0] * len(targets)
+        else:
+            pers = err.per(far, frame.size)
         rnd = sender.loss_random
         at = self.sched.at
-        ends = tx.end
+        ends = None if isinstance(delay, list) else tx.end
         for n, j in enumerate(targets):
             if not reach[n]:
                 if n < intended:
                     self._unreachable(sender, frame, j, now, dist)
                 continue
             assert pers is not None             # some target is reached
+            end = float(delay[j]) + now + dur if ends is None else float(ends[j])
             if sinr:
-                at(float(ends[j]), self._end_sinr_at, tx, j, rnd(), float(pers[n]), n < intended)
+                at(end, self._end_sinr_at, tx, j, rnd(), float(pers[n]), n < intended)
             else:
-                at(float(ends[j]), self._end_at, tx, j, bool(rnd() < pers[n]), n < intended)
+                at(end, self._end_at, tx, j, bool(rnd() < pers[n]), n < intended)
 
-    def _unreachable(self, sender: Modem, frame: Frame, j: int, now: float, dist: np.ndarray) -> None:
+    def _unreachable(self, sender: Modem, frame: Frame, j: int, now: float, dist: Any) -> None:
         m = self.listeners[j]
         assert m is not None                    # targets are listeners still attached
         known = self.poses.known
@@ -334,7 +389,7 @@ class Channel:
             modem.phy_received(frame, tx.distance(j))
 
     # -- SINR mode (capture) ------------------------------------------------------------------
-    def _powers(self, sender: Modem, dist: np.ndarray) -> np.ndarray:
+    def _powers(self, sender: Modem, dist: Any) -> np.ndarray:
         """Received power of `sender` at every slot; cached while its geometry (the same array) holds."""
         hit = self._pow_cache.get(sender.id)
         if hit is not None and hit[0] is dist:

@@ -22,23 +22,31 @@ Cost of ``per(d, 64)`` in microseconds (same machine and method as in ``phy.expr
     "1e-4", bit  (constant)           2.0               2.0
     "0"  (constant zero)              0.5               0.6
 
-The bit/byte path is one errstate plus seven small in-place ufunc calls after the expression.
+The bit/byte path is one errstate plus seven small in-place ufunc calls after the expression.  A rate
+that is a plain number (the default "0" above all) is read without `phy.expr` and without numpy: a small
+run of lossless modems never imports numpy (a third of its start-up).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Literal
+import re
+from typing import TYPE_CHECKING, Literal
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
-from .expr import Expr, compile_expr
+    from .expr import Expr
 
 __all__ = ["NO_LOSS", "RateErrorModel", "Unit"]
 
 Unit = Literal["bit", "byte", "packet"]
 _BITS_PER_BYTE: dict[str, int] = {"bit": 8, "byte": 1, "packet": 0}
 """Exponent per byte on air; 0 marks a per-packet rate."""
+
+
+_LITERAL = re.compile(r"[ \t\r\n\f\v]*((?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?)[ \t\r\n\f\v]*")
+"""A rate that is one number and nothing else, as phy.expr reads a number (its _NUMBER, its spaces)."""
 
 
 def _sanitise(r: float) -> float:
@@ -53,32 +61,56 @@ class RateErrorModel:
     default ``"0"``) never evaluates anything.
     """
 
-    __slots__ = ("expr", "unit", "lossless", "_per_byte", "_const")
+    __slots__ = ("_expr", "_text", "unit", "lossless", "_per_byte", "_const")
 
-    expr: Expr
     unit: Unit
     lossless: bool
     """True when the rate is the constant 0: callers may skip drawing random numbers altogether."""
 
     def __init__(self, expr: str | Expr, unit: Unit) -> None:
         """Compile `expr` (raises ``phy.expr.ExprError``, a ValueError, on bad text) for `unit`."""
+        compiled: Expr | None = None
         if isinstance(expr, str):
-            expr = compile_expr(expr)
-        elif not isinstance(expr, Expr):
-            raise TypeError(f"error expression must be a str or an Expr, not {type(expr).__name__}")
+            text = expr
+            lit = _LITERAL.fullmatch(text) if len(text) <= 1000 else None     # phy.expr.MAX_LENGTH
+            if lit is not None:
+                constant: float | None = float(lit.group(1))     # what phy.expr folds the text to
+            else:
+                from .expr import compile_expr
+
+                compiled = compile_expr(text)
+                constant = compiled.constant
+        else:
+            from .expr import Expr
+
+            if not isinstance(expr, Expr):
+                raise TypeError(f"error expression must be a str or an Expr, not {type(expr).__name__}")
+            compiled, text, constant = expr, expr.text, expr.constant
         if unit not in _BITS_PER_BYTE:
             raise ValueError(f"unknown error-rate unit {unit!r} (expected 'bit', 'byte' or 'packet')")
-        self.expr = expr
+        self._expr = compiled
+        self._text = text
         self.unit = unit
         self._per_byte = _BITS_PER_BYTE[unit]
-        self._const = None if expr.constant is None else _sanitise(expr.constant)
+        self._const = None if constant is None else _sanitise(constant)
         self.lossless = self._const == 0.0
 
+    @property
+    def expr(self) -> Expr:
+        """The compiled expression (a plain number is compiled only when asked for)."""
+        if self._expr is None:
+            from .expr import compile_expr
+
+            self._expr = compile_expr(self._text)
+        return self._expr
+
     def __repr__(self) -> str:
-        return f"RateErrorModel({self.expr.text!r}, {self.unit!r})"
+        return f"RateErrorModel({self._text!r}, {self.unit!r})"
 
     def rate(self, distance_m: np.ndarray | float) -> np.ndarray:
         """The sanitised rate r in [0, 1] at each distance: a new float64 array of the input's shape."""
+        import numpy as np
+
         d = np.asarray(distance_m, dtype=np.float64)
         if self._const is not None:
             return np.full(d.shape, self._const)
@@ -92,6 +124,8 @@ class RateErrorModel:
         """
         if not 0 <= size_bytes < math.inf:
             raise ValueError(f"frame size must be a finite number of bytes >= 0, got {size_bytes!r}")
+        import numpy as np
+
         d = np.asarray(distance_m, dtype=np.float64)
         n = float(self._per_byte * size_bytes)  # a float multiplies an array faster than an int
         c = self._const
@@ -116,6 +150,8 @@ class RateErrorModel:
 
     def _rate(self, d: np.ndarray) -> np.ndarray:
         """Sanitised rate for a non-constant expression; the caller holds np.errstate(all="ignore")."""
+        import numpy as np
+
         if d.ndim == 0:
             return self._rate(d.reshape(1)).reshape(())
         r = self.expr.unguarded(d)
