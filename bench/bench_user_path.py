@@ -10,7 +10,8 @@ bench_engine.py).  For each N the benchmark writes both scenes as XML files and 
 the same machine:
 
 - ns-3: bench/ns3_aloha.cc compiled against the ns3 wheel (bench_ns3_aloha.build), same N, G, duration;
-- bare engine: a process that loads the scene, builds the Network and runs it with no listener at all;
+- bare engine: a process that loads the scene, builds the Network and runs it with no listener at all (with
+  the start-up of the command: pydantic's plugin scan off, as cli/__init__.py sets it);
 - `uwsimnet run SCENE` (online summary, no trace) and `uwsimnet run SCENE --trace t.jsonl`.
 
 Every figure is a whole process (start-up, imports and scene loading included) timed with wait4, which also
@@ -89,7 +90,8 @@ def timed(cmd: list[str]) -> tuple[float, int, str]:
 
 
 BARE = """
-import sys, time
+import os, sys, time
+os.environ.setdefault("PYDANTIC_DISABLE_PLUGINS", "__all__")     # the start-up of the command (cli/__init__.py)
 from uwsimnet_zenoh.app.virtual import load_scene_file
 from uwsimnet_zenoh.engine.network import Network
 net = Network(load_scene_file(sys.argv[1]))
