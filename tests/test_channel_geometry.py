@@ -50,6 +50,11 @@ def test_list_and_array_geometry_are_the_same_doubles():
         for t in (0.0, 3.3, 17.0):
             for m in net.modems.values():
                 _same(ch, m, t)
+            # changes after the numpy columns exist (the first array read made them): kept in step
+            i = rng.randrange(len(poses.names))
+            poses.update(poses.names[i], t, [rng.uniform(-1e3, 1e3) for _ in range(3)], [1.0, -0.5, 0.0])
+            poses.set_static(poses.names[(i + 2) % len(poses.names)], (rng.uniform(0, 9), 1.0, -2.0))
+            poses.set_external(poses.names[(i + 3) % len(poses.names)])
         assert any(not k for k in poses.known)
         first = next(iter(net.modems.values()))
         assert len({round(d, 6) for d in ch._geometry_lists(first, 1.0)[0]}) > 15     # distinct distances

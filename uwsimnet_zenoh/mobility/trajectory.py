@@ -5,8 +5,9 @@ at the query time (piecewise-linear between waypoints, holding after the last); 
 comes from outside (HIL) keep the last sample received, extrapolated with its velocity if one was
 given.  The table is plain Python floats: `points(t)` gives every position as an (x, y, z) tuple, which
 is all a small channel reads, and `positions(t)` the same doubles as an (n, 3) numpy array for the
-channels and tools that compute on arrays (numpy is imported only then: its import is a third of a
-small run's start-up).
+channels and tools that compute on arrays.  numpy is imported only then (its import is a third of a
+small run's start-up); from that first call on, the table keeps numpy copies of its columns too, so a
+large swarm's positions are one vectorised expression per read, as they always were.
 """
 
 from __future__ import annotations
@@ -76,6 +77,8 @@ class PoseTable:
         self._cache_t = float("nan")
         self._cache: list[Point] = self._pos
         self._array: tuple[int, float, np.ndarray] | None = None     # (version, t, positions(t))
+        self._cols: list[np.ndarray] | None = None  # numpy copies (pos, vel, t_sample, known) once asked for
+        self._ext_np: np.ndarray | None = None      # _ext_idx as a numpy index, once asked for
         self.pull: Callable[[float], None] | None = None
         """Called with t before positions at t are read: a source that applies pose samples lazily (the
         Zenoh broker keeps the newest sample per vehicle and applies it only when the geometry is needed)
@@ -85,7 +88,10 @@ class PoseTable:
         """Bumped on every change; with `moving` False, positions are constant until it changes."""
 
     def set_static(self, name: str, p: Sequence[float]) -> None:
-        self._pos[self.index[name]] = _point(p)
+        i = self.index[name]
+        self._pos[i] = _point(p)
+        if self._cols is not None:
+            self._cols[0][i] = self._pos[i]
         self._changed()
 
     def _changed(self) -> None:
@@ -102,8 +108,11 @@ class PoseTable:
         i = self.index[name]
         self._external.add(i)
         self._ext_idx = sorted(self._external)
+        self._ext_np = None
         self._scripted.pop(i, None)
         self.known[i] = False
+        if self._cols is not None:
+            self._cols[3][i] = False
         self._changed()
 
     def update(self, name: str, t: float, p: Sequence[float], v: Sequence[float] | None = None) -> None:
@@ -114,6 +123,12 @@ class PoseTable:
         self._vel[i] = ORIGIN if v is None else _point(v)
         self._t_sample[i] = float(t)
         self.known[i] = True
+        cols = self._cols
+        if cols is not None:
+            cols[0][i] = self._pos[i]
+            cols[1][i] = self._vel[i]
+            cols[2][i] = self._t_sample[i]
+            cols[3][i] = True
         self._changed()
 
     def points(self, t: float) -> list[Point]:
@@ -144,16 +159,45 @@ class PoseTable:
         return pos
 
     def positions(self, t: float) -> np.ndarray:
-        """`points(t)` as an (n, 3) float64 array (the same doubles), kept while nothing changes."""
-        pts = self.points(t)
+        """`points(t)` as an (n, 3) float64 array (the same doubles: p + v * max(0, t - t_sample) for every
+        external vehicle in one expression), kept while nothing changes.  Shared: do not write to it."""
+        if self.pull is not None:
+            self.pull(t)
         a = self._array
         if a is not None and a[0] == self.version and (a[1] == t or not self.moving):
             return a[2]
         import numpy as np
 
-        arr = np.array(pts, dtype=np.float64).reshape(len(pts), 3)
-        self._array = (self.version, t, arr)
-        return arr
+        cols = self._columns()
+        pos = cols[0].copy() if (self._scripted or self._external) else cols[0]
+        for i, traj in self._scripted.items():
+            pos[i] = traj.position(t)
+        if self._ext_idx:
+            ext = self._ext_np
+            if ext is None:
+                ext = self._ext_np = np.array(self._ext_idx, dtype=np.intp)
+            ext = ext[cols[3][ext]]
+            dt = np.maximum(t - cols[2][ext], 0.0)
+            pos[ext] = cols[0][ext] + cols[1][ext] * dt[:, None]
+        self._array = (self.version, t, pos)
+        return pos
+
+    def known_mask(self) -> np.ndarray:
+        """`known` as a numpy bool array (the table's own: do not write to it)."""
+        return self._columns()[3]
+
+    def _columns(self) -> list[np.ndarray]:
+        """The numpy copies of the columns (pos, vel, t_sample, known), made at the first call and kept
+        up to date by every change from then on."""
+        cols = self._cols
+        if cols is None:
+            import numpy as np
+
+            n = len(self.names)
+            cols = self._cols = [np.array(self._pos, dtype=np.float64).reshape(n, 3),
+                                 np.array(self._vel, dtype=np.float64).reshape(n, 3),
+                                 np.array(self._t_sample, dtype=np.float64), np.array(self.known, dtype=bool)]
+        return cols
 
     def position(self, name: str, t: float) -> Point:
         return self.points(t)[self.index[name]]

@@ -139,7 +139,8 @@ class Channel:
         self.log: deque[Transmission] = deque()
         self._members = 0                           # bumped on attach/detach (invalidates geometry)
         self._geo_cache: dict[str, tuple[int, int, Geometry]] = {}
-        self._slots: tuple | None = None            # (pose version, members, slot vehicles, alive & known)
+        self._slots: tuple | None = None            # (pose version, members, alive & known, slot positions)
+        self._members_np: tuple | None = None       # (members, slot -> vehicle, alive) as numpy arrays
         self._longest = 0.0
         self.transmissions = 0
         self._end_at: Callable[[Transmission, int, bool, bool], None] = self._reception_end    # bound once
@@ -247,13 +248,16 @@ class Channel:
 
         poses = self.poses
         pos = poses.positions(now)
+        mem = self._members_np
+        if mem is None or mem[0] != self._members:
+            mem = self._members_np = (self._members, np.array(self._veh, dtype=np.intp),
+                                      np.array(self._alive, dtype=bool))
+        veh = mem[1]
         sl = self._slots
         if sl is None or sl[0] != poses.version or sl[1] != self._members:
-            veh = np.array(self._veh, dtype=np.intp)
-            sl = self._slots = (poses.version, self._members, veh,
-                                np.array(self._alive, dtype=bool) & np.array(poses.known, dtype=bool)[veh],
+            sl = self._slots = (poses.version, self._members, mem[2] & poses.known_mask()[veh],
                                 None if poses.moving else pos[veh])
-        veh, slot_ok, slot_pos = sl[2], sl[3], sl[4]
+        slot_ok, slot_pos = sl[2], sl[3]
         diff = (pos[veh] if slot_pos is None else slot_pos) - pos[sender.vehicle_index]
         dx, dy, dz = diff[:, 0], diff[:, 1], diff[:, 2]
         d2 = dx * dx
