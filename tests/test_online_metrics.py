@@ -417,3 +417,36 @@ def test_median_p95_are_numpys():
     for n in (1, 2, 3, 20, 21, 101, 4096, 4097):
         d = rng.exponential(0.5, n)
         assert median_p95(d) == (float(np.median(d)), float(np.percentile(d, 95)))
+
+
+
+def test_odd_addresses_and_sequence_numbers_agree_with_the_reference():
+    """Source addresses past the fold's address list (>= 4096, negative), and two frames of a sender whose
+    seqs are swapped (3 seen before 2: when 2 arrives, 3 is both the next in line and already known): the
+    reference's numbers, and for the swap the numbers of the trace as it was."""
+    from test_aloha_theory import sensors_scene
+
+    sc = sensors_scene(4, 1.0, 200.0, 200.0, mac="aloha", fifo=200, seed=5)
+    meta, recs = _records(sc)
+    src = next(r["src"] for r in recs if r["ev"] == "enq")
+    at: dict[int, list[int]] = {}
+    for i, r in enumerate(recs):
+        if r["src"] == src and r.get("kind", "data") == "data":
+            at.setdefault(r["seq"], []).append(i)
+    k = next(k for k in sorted(at) if k + 1 in at and at[k + 1][0] < at[k][-1])   # two frames interleaved
+    swapped = [dict(r) for r in recs]
+    for i in at[k] + at[k + 1]:
+        swapped[i]["seq"] = 2 * k + 1 - swapped[i]["seq"]
+    # frame k + 1 is seen first (skipping ahead), then frame k (the next in line), then k + 1 again
+    assert at[k][0] < at[k + 1][0] < at[k][-1]
+    want = _agree(meta, swapped, horizon=5.0)
+    assert want[0] == _as_ref(analyse([meta, *recs], horizon=5.0))[0]
+
+    moved = {}
+    for r in recs:
+        for k in ("src", "dst"):
+            v = r.get(k)
+            if isinstance(v, int) and v != 255:
+                r[k] = moved.setdefault(v, (70000, -3, 4096, 5000, 9)[len(moved) % 5] + len(moved))
+    assert len(moved) >= 4
+    _agree(meta, recs, horizon=5.0)

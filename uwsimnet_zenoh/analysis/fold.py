@@ -89,6 +89,53 @@ class FrameState:
         return [Receiver(self.r_dev, self.r_nrx, self.r_ndrop, self.r_reason, self.r_at)]
 
 
+@mypyc_attr(acyclic=True)     # holds no reference back: not tracked by the cyclic GC (compiled)
+class Count:
+    """One counter in a dict (of drop events by reason): incremented in place, where an int value would
+    cost a dict store and a boxed int per event."""
+
+    def __init__(self) -> None:
+        self.n = 0
+
+
+def bump(by: dict[str | None, Count], key: str | None) -> None:
+    c = by.get(key)
+    if c is None:
+        c = by[key] = Count()
+    c.n += 1
+
+
+def counts(by: dict[str | None, Count]) -> dict[str | None, int]:
+    """A dict of counters as plain numbers."""
+    return {k: c.n for k, c in by.items()}
+
+
+LOW: Final = 4096
+"""Source addresses below this are found in a list (MAC addresses are small numbers), the others in a dict."""
+
+
+@mypyc_attr(acyclic=True)
+class Addresses:
+    """A channel's transmitters learnt from its events, by source address (the fold reads `low` inline)."""
+
+    def __init__(self) -> None:
+        self.low: list[Sender | None] = []
+        self.high: dict[int, Sender] = {}
+
+    def get(self, src: int) -> Sender | None:
+        low = self.low
+        return low[src] if 0 <= src < len(low) else self.high.get(src)
+
+    def set(self, src: int, s: Sender) -> None:
+        if 0 <= src < LOW:
+            low = self.low
+            while len(low) <= src:
+                low.append(None)
+            low[src] = s
+        else:
+            self.high[src] = s
+
+
 @mypyc_attr(acyclic=True)
 class Sender:
     """One transmitter (dccommsId): its data frames by seq and the highest seq it transmitted.  The fold
@@ -99,6 +146,8 @@ class Sender:
         self.seqs: list[FrameState] = []                # frames 0, 1, 2, ...: seq k at index k
         self.frames: dict[int, FrameState] = {}         # the others (a seq that skipped ahead, negative)
         self.max_seq = -1
+        self.flow_name: object = None                   # the flow name of its last new frame, and its id
+        self.flow_id = -1
 
     def get(self, seq: int) -> FrameState | None:
         """Its data frame `seq`, if it has one.  A modem numbers its frames 0, 1, 2, ..., so they are a
@@ -107,13 +156,6 @@ class Sender:
         if 0 <= seq < len(seqs):
             return seqs[seq]
         return self.frames.get(seq)
-
-    def put(self, seq: int, f: FrameState) -> None:
-        """Its new data frame `seq` (`get(seq)` was None)."""
-        if seq == len(self.seqs):
-            self.seqs.append(f)
-        else:
-            self.frames[seq] = f
 
 
 @mypyc_attr(acyclic=True)     # holds no reference back: not tracked by the cyclic GC (compiled)
@@ -142,8 +184,8 @@ class FlowState:
         self.has_prev = False
         self.jit_sum = 0.0
         self.jit_n = 0
-        self.drop_events: dict[str | None, int] = {}    # every data drop event, by reason
-        self.drops: dict[str | None, int] = {}          # final outcomes (settle)
+        self.drop_events: dict[str | None, Count] = {}  # every data drop event, by reason
+        self.drops: dict[str | None, Count] = {}        # final outcomes (settle)
         self.intended = 0
         self.in_flight = 0
 
@@ -156,7 +198,7 @@ class ChannelState:
         self.ctrl_sent = 0
         self.bytes_on_air = 0
         self.delivered = 0
-        self.drop_events: dict[str | None, int] = {}
+        self.drop_events: dict[str | None, Count] = {}
 
 
 class Fold(EventFold):
@@ -168,7 +210,7 @@ class Fold(EventFold):
         self.meta_tx = meta_tx
         self.meta_rx = meta_rx
         self.header = header
-        self.tx: dict[object, dict[int, Sender]] = {}       # learnt: ch -> src -> transmitter
+        self.tx: dict[object, Addresses] = {}               # learnt: ch -> src -> transmitter
         self.flows: list[FlowState] = []
         self.fid: dict[str, int] = {}
         self.frames: list[FrameState] = []
@@ -178,7 +220,7 @@ class Fold(EventFold):
         self._t_end_f = -math.inf           # t_end when it is a float
         self._last_ch: object = None        # the channel of the last event, its state and its transmitters
         self._c: ChannelState | None = None
-        self._ctx: dict[int, Sender] = {}
+        self._ctx = Addresses()
 
     def flow(self, name: str, src: str | None, dst: int | None, payload: int | None) -> int:
         """The id of flow `name`, a new one with these fields if it has none."""
@@ -191,7 +233,8 @@ class Fold(EventFold):
 
     def tx_dev(self, ch: object, src: int) -> str:
         """The dccommsId transmitting as `src` on channel `ch` (or `ch:src` if nobody knows)."""
-        s = self.tx.get(ch, {}).get(src)
+        a = self.tx.get(ch)
+        s = a.get(src) if a is not None else None
         if s is not None:
             return s.dev
         dev = self.meta_tx.get((ch, src))
@@ -245,9 +288,10 @@ class Fold(EventFold):
         The tracer calls it at once for a run's online summary (trace.tracer.EventFold); `rows` for a
         trace read back."""
         t_end = self.t_end
+        t_o: object = t         # (stored as given: a float narrowed below would be boxed anew)
         if isinstance(t, float) and isinstance(t_end, float):
             if t > self._t_end_f:
-                self.t_end = t
+                self.t_end = t_o
                 self._t_end_f = t
         elif t_end is None or t > t_end:  # type: ignore[operator]
             self.t_end = t
@@ -260,33 +304,36 @@ class Fold(EventFold):
             c = self._c = self.channels.get(ch) or self._channel(ch)
             got = self.tx.get(ch)
             if got is None:
-                got = self.tx[ch] = {}
+                got = self.tx[ch] = Addresses()
             ctx = self._ctx = got
             self._last_ch = ch
+        low = ctx.low
+        got_s = low[src] if 0 <= src < len(low) else ctx.high.get(src)
         if ev == "rx":
             c.delivered += 1
             at_tx = False
-            got_s = ctx.get(src)
             snd = got_s if got_s is not None else self.sender(self.tx_dev(ch, src))
         elif ev == "drop":
             de = c.drop_events
-            de[reason] = de.get(reason, 0) + 1
-            known = ctx.get(src)
-            if known is not None:
-                at_tx = dev == known.dev
+            cnt = de.get(reason)
+            if cnt is None:
+                cnt = de[reason] = Count()
+            cnt.n += 1
+            if got_s is not None:
+                at_tx = dev == got_s.dev
+                snd = got_s
             else:
                 at_tx = reason in _TX_REASONS or (reason not in _RX_REASONS and not has_dist)
-            if known is not None:
-                snd = known
-            elif at_tx:
-                snd = ctx[src] = self.sender(dev)
-            else:
-                snd = self.sender(self.tx_dev(ch, src))
+                if at_tx:
+                    snd = self.sender(dev)
+                    ctx.set(src, snd)
+                else:
+                    snd = self.sender(self.tx_dev(ch, src))
         else:
             at_tx = True
-            got_s = ctx.get(src)
             if got_s is None:
-                snd = ctx[src] = self.sender(dev)
+                snd = self.sender(dev)
+                ctx.set(src, snd)
             elif got_s.dev == dev:
                 snd = got_s
             else:               # the address was another transmitter's first
@@ -306,12 +353,28 @@ class Fold(EventFold):
                 m.ctrl_bytes_on_air += size
             return
 
-        f = snd.get(seq)
+        seqs = snd.seqs
+        n_seqs = len(seqs)
+        if 0 <= seq < n_seqs:
+            f: FrameState | None = seqs[seq]
+        elif seq == n_seqs and not snd.frames:
+            f = None        # the next one, the common case: no lookup
+        else:
+            f = snd.frames.get(seq)
         if f is None:
             fdst: int = -1 if dst is None else dst  # type: ignore[assignment]
-            fl = self.flow(flow if flow is not None else tx_dev, tx_dev, fdst, None)
+            name = flow if flow is not None else tx_dev
+            if name is snd.flow_name:
+                fl = snd.flow_id
+            else:
+                fl = self.flow(name, tx_dev, fdst, None)
+                snd.flow_name = name
+                snd.flow_id = fl
             f = FrameState(tx_dev, seq, fl, ch, fdst)
-            snd.put(seq, f)
+            if seq == n_seqs:
+                seqs.append(f)
+            else:
+                snd.frames[seq] = f
             self.frames.append(f)
         m = self.flows[f.flow]
         if m.t_first is None:
@@ -364,7 +427,10 @@ class Fold(EventFold):
                 m.has_prev = True
         else:   # drop
             fde = m.drop_events
-            fde[reason] = fde.get(reason, 0) + 1
+            fcnt = fde.get(reason)
+            if fcnt is None:
+                fcnt = fde[reason] = Count()
+            fcnt.n += 1
             if at_tx:
                 f.n_txdrop += 1
                 f.txdrop = reason
@@ -394,6 +460,9 @@ class Fold(EventFold):
         in_flight: list[tuple[Any, ...]] = []
         flows = self.flows
         meta_rx = self.meta_rx
+        who_ch: object = None       # the last addressee looked up: frames of a run go to a few
+        who_dst = -2
+        who: str | None = None
         for f in self.frames:
             m = flows[f.flow]
             drops = m.drops
@@ -407,16 +476,17 @@ class Fold(EventFold):
                 # the common case, no violation possible but a receiver that is not the addressee
                 rd = f.r_dev
                 if rd is not None and fdst != _BROADCAST:
-                    who = meta_rx.get((f.ch, fdst))
+                    if fdst != who_dst or f.ch is not who_ch:
+                        who_ch = f.ch
+                        who_dst = fdst
+                        who = meta_rx.get((who_ch, fdst))
                     if who is not None and rd != who:
                         total += self._odd(f, end, horizon, violations, in_flight, limit)
                         continue
                 if rd is not None and f.r_nrx == 0 and f.r_ndrop and f.r_at == nt and not final:
-                    rr = f.r_reason
-                    drops[rr] = drops.get(rr, 0) + 1
+                    bump(drops, f.r_reason)
                 if ntd and not f.r_nrx:
-                    tr = f.txdrop
-                    drops[tr] = drops.get(tr, 0) + 1
+                    bump(drops, f.txdrop)
                 if nt:
                     m.intended += 1 if (rd is not None or fdst != _BROADCAST) else 0
                 continue
@@ -446,12 +516,12 @@ class Fold(EventFold):
                 if r.n_rx > 1:
                     msgs.append(f"delivered {r.n_rx} times at {r.dev}")
             elif r.n_drop and r.at == nt and not final:
-                drops[r.reason] = drops.get(r.reason, 0) + 1
+                bump(drops, r.reason)
             if r.n_rx + r.n_drop > nt:
                 msgs.append(f"{r.n_rx + r.n_drop} outcomes at {r.dev} for {nt} transmission(s)")
         txr = f.txdrop
         if ntd and not any_rx:
-            drops[txr] = drops.get(txr, 0) + 1
+            bump(drops, txr)
         if nt:
             m.intended += len(rcv) if fdst == _BROADCAST else 1
         ne = f.n_enq

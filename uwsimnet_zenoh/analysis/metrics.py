@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from ..kernel.frame import BROADCAST
-from .fold import FlowState, Fold
+from .fold import FlowState, Fold, counts
 from .read import (
     DEFAULT_HORIZON,
     EVENTS,
@@ -321,7 +321,7 @@ class Accumulator:
     def _channels(self) -> dict[Any, ChannelMetrics]:
         out = {ch: ChannelMetrics(ch, enqueued=c.enqueued, sent=c.sent, ctrl_sent=c.ctrl_sent,
                                   bytes_on_air=c.bytes_on_air, delivered=c.delivered,
-                                  drop_events=dict(sorted(c.drop_events.items())))  # type: ignore[arg-type]
+                                  drop_events=dict(sorted(counts(c.drop_events).items())))  # type: ignore[arg-type]
                for ch, c in self._fold.channels.items()}
         return {ch: out[ch] for ch in sorted(out, key=lambda c: (isinstance(c, str), c))}
 
@@ -381,8 +381,8 @@ def _finish(s: FlowState, mf: Mapping[str, Any] | None, duration: float | None) 
                     unique_sent=s.unique_sent, delivered=s.delivered, payload_delivered=s.payload_delivered,
                     payload_offered=s.payload_offered, data_bytes_on_air=s.data_bytes_on_air,
                     ctrl_sent=s.ctrl_sent, ctrl_bytes_on_air=s.ctrl_bytes_on_air, in_flight=s.in_flight)
-    m.drops = dict(sorted(s.drops.items()))  # type: ignore[arg-type]
-    m.superseded = {r: n - m.drops.get(r, 0) for r, n in sorted(s.drop_events.items())  # type: ignore[arg-type]
+    m.drops = dict(sorted(counts(s.drops).items()))  # type: ignore[arg-type]
+    m.superseded = {r: n - m.drops.get(r, 0) for r, n in sorted(counts(s.drop_events).items())  # type: ignore[arg-type]
                     if n - m.drops.get(r, 0) > 0}  # type: ignore[arg-type]
     # active window
     w0: Any = None

@@ -177,6 +177,8 @@ class Tracer:
         self._n_enq = 0                         # enq, tx and rx events without a reason (nearly all of them):
         self._n_tx = 0                          # native counters, where a dict costs two lookups an event
         self._n_rx = 0
+        self._t_prev = math.nan                 # the last float time the folds were given, and its t9:
+        self._t9_prev: object = None            # events come in runs at one time (enq, then tx or drop)
 
     def add(self, sink: Callable[[Record], None]) -> None:
         """A record sink: called with each event as a dict (docs/trace-format.md), at once."""
@@ -208,7 +210,17 @@ class Tracer:
         compiled or not.)"""
         rows = self._rows
         if self.folds:
-            t9 = _round(t, 1e9, 9) if type(t) is float else round(t, 9)
+            if type(t) is float:
+                tf: float = t
+                if tf == self._t_prev:
+                    t9: Any = self._t9_prev
+                else:
+                    t9 = _round(tf, 1e9, 9)
+                    if tf > 0.0:        # (never -0.0, which equals 0.0 but is another record)
+                        self._t_prev = tf
+                        self._t9_prev = t9
+            else:
+                t9 = round(t, 9)
             has_dist = dist is not None
             for f in self.folds:
                 f.event(t9, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
