@@ -1,10 +1,12 @@
 """A channel's geometry (phy.channel): Python lists on a small channel, numpy arrays on a large one, the
-same doubles; and a small run that never imports numpy (its import was a third of the start-up)."""
+same doubles; and small runs, virtual and realtime, that never import numpy (its import was a third of the
+start-up, and in a realtime run a stall of the engine thread)."""
 
 from __future__ import annotations
 
 import importlib.util
 import random
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -73,3 +75,27 @@ def test_a_lossless_run_of_a_small_channel_does_not_import_numpy(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert out.stdout.split()[-2:] == ["0", "False"], out.stdout + out.stderr
     assert len((tmp_path / "t.jsonl").read_text().splitlines()) > 100
+
+
+def test_a_realtime_run_of_a_small_scene_does_not_import_numpy(tmp_path):
+    """The realtime broker publishes the scene vehicles' poses (and answers info and state) from the pose
+    table's points: numpy, imported lazily, would be imported by the engine thread in the middle of the run
+    (150-300 ms late events)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    dev = ("<CustomCommsDevice><dccommsId>{0}</dccommsId><mac>{1}</mac><txChannelId>0</txChannelId>"
+           "<rxChannelId>0</rxChannelId><bitrate>1000</bitrate></CustomCommsDevice>")
+    path = tmp_path / "rt.xml"
+    path.write_text(
+        "<UWSimScene><simulation><duration>1.2</duration><clock>realtime</clock><world>np</world></simulation>"
+        "<CustomCommsChannel><id>0</id><propTimeIncPerMeter>0.6666</propTimeIncPerMeter></CustomCommsChannel>"
+        f"<vehicle><name>a</name><position>0 0 0</position>{dev.format('a', 1)}</vehicle>"
+        f"<vehicle><name>b</name><position>100 0 0</position>{dev.format('b', 2)}</vehicle>"
+        "<flow><name>f</name><src>a</src><dst>2</dst><size>20</size><interval>0.2</interval></flow></UWSimScene>")
+    code = ("import sys; from uwsimnet_zenoh.cli.main import main; "
+            f"rc = main(['run', {str(path)!r}, '--clock', 'realtime', '--listen', 'tcp/127.0.0.1:{port}', "
+            f"'--trace', {str(tmp_path / 't.jsonl')!r}]); print(rc, 'numpy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.split()[-2:] == ["0", "False"], out.stdout + out.stderr
+    assert '"ev":"rx"' in (tmp_path / "t.jsonl").read_text()

@@ -39,6 +39,7 @@ from ..bus.session import (
     tune_threads,
 )
 from ..errors import UserError
+from ..phy.channel import LIST_SLOTS
 from ..scene.model import Scene
 from . import ros2
 from .checks import build_network, plugin_failure, tracing_sink
@@ -246,6 +247,9 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
         if f.name not in external:
             net.flows.append(FlowSource(f, net.modems[f.src], net.sched, net.seeds("flow", f.name),
                                         net.duration))
+    if len(net.modems) > LIST_SLOTS:
+        import numpy  # noqa: F401 - a channel this large computes with arrays: imported now, not by the
+        #               engine thread at its first transmission (a 150-300 ms stall in the middle of a run)
     failed = threading.Event()          # an event, a MAC or the engine raised: the run stops (exit 2)
     clock = RealtimeClock(net.sched, until=duration, speed=getattr(args, "speed", 1.0),
                           spin=float(os.environ.get("UWSIMNET_SPIN") or SPIN),

@@ -646,7 +646,7 @@ class Broker:
         cfg = m.cfg
         self._pull_poses(net.sched.now)
         known = bool(net.poses.known[m.vehicle_index])
-        pos = net.poses.positions(net.sched.now)[m.vehicle_index] if known else None
+        pos = net.poses.points(net.sched.now)[m.vehicle_index] if known else None
         ep = self.endpoints[dev]
         counters = dict(m.counters)
         counters.update(ep.bad)
@@ -731,7 +731,7 @@ class Broker:
         """Idle hook: the periodic publications that are due (poses, clock)."""
         if self._due_poses:
             net = self.net
-            pos = net.poses.positions(net.sched.now)
+            pos = net.poses.points(net.sched.now)      # (not `positions`: no array, no numpy import)
             idx = net.poses.index
             now = net.sched.now
             batches, self._due_poses = self._due_poses, []

@@ -103,7 +103,7 @@ class Control:
         b = self.b
         net = b.net
         now = net.sched.now
-        pos = net.poses.positions(now)
+        pos = net.poses.points(now)
         modems = {dev: {"vehicle": ep.modem.vehicle, "address": ep.modem.address,
                         "tx_channel": ep.modem.tx_channel.id, "rx_channel": ep.modem.rx_channel.id,
                         "kind": "real" if dev in b.real else "sim"}

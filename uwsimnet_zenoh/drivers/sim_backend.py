@@ -103,8 +103,8 @@ class SimWorld:
         i, j = sender.vehicle_index, receiver.vehicle_index
 
         def dist(at: float) -> float:
-            p = poses.positions(max(0.0, at))
-            return float(math.dist(tuple(p[i]), tuple(p[j])))
+            p = poses.points(max(0.0, at))
+            return float(math.dist(p[i], p[j]))
 
         d = dist(t)
         v = (dist(t + 0.5) - dist(t - 0.5)) if poses.moving else 0.0
