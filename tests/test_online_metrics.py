@@ -144,7 +144,7 @@ def test_batches_are_written_as_json_writes_their_records(rows):
     t9 = [round(r[0], 9) for r in rows]
     fast = io.BytesIO()
     JsonlSink(fast).write_batch(events.Batch(rows, t9))
-    assert fast.getvalue().decode("utf-8") == "".join(REF(events.finite(events._row_record(t9[k], rows[k]))) + "\n"
+    assert fast.getvalue().decode("utf-8") == "".join(REF(events.finite(events.row_record(t9[k], rows[k]))) + "\n"
                                                       for k in range(len(rows)))
 
 

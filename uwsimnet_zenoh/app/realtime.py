@@ -212,7 +212,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
     """The realtime run; `trace` None: no trace file (the summary's metrics are online either way)."""
     from ..analysis import Accumulator
     from ..bus.broker import Broker
-    from ..kernel.realtime import SPIN, Deferred, RealtimeClock
+    from ..kernel.realtime import SPIN, RealtimeClock
     from ..trace.events import JsonlSink
     from ..traffic.flow import FlowSource
 
@@ -285,12 +285,12 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 fh = open(trace, "w", encoding="utf-8")  # noqa: SIM115 - closed in finally, after the engine
                 sink = JsonlSink(fh)
                 sink.header(meta)
-                jsonl = Deferred(sink)          # written when the engine is idle, not between event and rx
-                net.tracer.add(jsonl)
+                jsonl = sink                    # written from the tracer's batches when the engine is
+                net.tracer.consume(sink.write_batch)    # idle, not between an event and its rx
                 last_flush = [time.monotonic()]
 
                 def write_trace() -> None:
-                    jsonl.flush()
+                    net.tracer.flush()
                     if time.monotonic() - last_flush[0] > 1.0:      # on disk every second (tail -f works)
                         fh.flush()
                         last_flush[0] = time.monotonic()
@@ -366,8 +366,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
             acc.ended = end["t"]
             if fh is not None:
                 if jsonl is not None:
-                    jsonl.flush()
-                    JsonlSink(fh)(end)
+                    jsonl(end)
                 fh.flush()
                 fh.close()
             session.close()

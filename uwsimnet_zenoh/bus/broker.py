@@ -34,14 +34,14 @@ import logging
 import sys
 import time
 from collections import Counter, deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
 import zenoh
 from uwsimnet_gli import wire
 from uwsimnet_gli.wire import Keys, check_chunk, is_chunk, parse
 
-from ..kernel.realtime import Deferred
+from ..trace.events import Batch, row_record
 from .control import Control
 from .endpoint import BLOCK, ModemEndpoint
 from .hil import RETOKEN, SWAP_IN, SWAP_OUT, HilSwap
@@ -155,7 +155,6 @@ class Broker:
         """Simulated modems handed to a real driver: what they still say goes out here (HIL swap)."""
         self._entities: list[Any] = []
         self._trace_pubs: dict[int, Any] = {}
-        self._trace_buf: Deferred | None = None
         self._pose_pubs: dict[str, Any] = {}
         self._clock_pub: Any = None
         self._waiting_pose: set[str] = set()
@@ -206,9 +205,8 @@ class Broker:
             for ch in net.channels:
                 self._trace_pubs[ch] = s.declare_publisher(k.trace(ch))
             self._trace_out = self._outbox("*trace", 16 * self.outbox_capacity)   # every record of the channels
-            self._trace_buf = Deferred(self._trace_sink)
-            net.tracer.add(self._trace_buf)
-            self.clock.idle_hooks.append(self._trace_buf.flush)
+            net.tracer.consume(self._trace_batch)         # records made from the tracer's rows when the
+            self.clock.idle_hooks.append(net.tracer.flush)  # engine is idle, not between an event and its rx
         self._clock_pub = s.declare_publisher(k.clock)
         self.clock.idle_hooks.append(self._publish_due)
         self.clock.idle_hooks.append(self._pull_poses_now)
@@ -230,11 +228,11 @@ class Broker:
         """Undeclare everything (call after the clock has stopped; the session stays open)."""
         if self._closed:
             return
+        if self._trace_out is not None:     # the records not yet published (later ones are not)
+            with contextlib.suppress(Exception):
+                self.net.tracer.flush()
         self._closed = True
         self._pose_sub = None
-        if self._trace_buf is not None:
-            with contextlib.suppress(Exception):
-                self._trace_buf.flush()
         for e in self._entities:            # no more input
             self._undeclare(e)
         self._entities.clear()
@@ -259,10 +257,11 @@ class Broker:
     def serves(self, channel: int) -> bool:
         return self.channels is None or channel in self.channels
 
-    def _outbox(self, name: str, capacity: int) -> Outbox:
+    def _outbox(self, name: str, capacity: int, on_wake: Callable[[], None] | None = None) -> Outbox:
         out = self.outboxes.get(name)
         if out is None or out._closing:
-            out = self.outboxes[name] = Outbox(name, capacity, defer=self._to_wake.append, cpu=self.clock.cpu)
+            out = self.outboxes[name] = Outbox(name, capacity, defer=self._to_wake.append, cpu=self.clock.cpu,
+                                               on_wake=on_wake)
         return out
 
     def _wake_outboxes(self) -> None:
@@ -276,7 +275,8 @@ class Broker:
         lane = self.lanes.get(m.id)
         if lane is None:
             lane = self.lanes[m.id] = Lane(m.id, self.lane_capacity)
-        ep = Endpoint(s, k, m, self._outbox(m.id, self.outbox_capacity), lane)
+        # a modem's rx frame is the output whose time is modelled: the engine yields to its put
+        ep = Endpoint(s, k, m, self._outbox(m.id, self.outbox_capacity, self.clock.yield_to_output), lane)
         self.endpoints[m.id] = ep
         self.foreign.discard(m.id)
         if m.id not in self.real:
@@ -510,11 +510,16 @@ class Broker:
         self.warn(f"edge:{dev}", "%s: %s message dropped at the edge: its consumer does not keep up (outbox"
                   " of %d full)", dev, kind, self.outbox_capacity)
 
-    def _trace_sink(self, rec: dict) -> None:
-        pub = self._trace_pubs.get(rec["ch"])
+    def _trace_batch(self, b: Batch) -> None:
+        """(engine: an idle hook, or a full batch) Each record of the batch on its channel's `trace` key."""
         out = self._trace_out
-        if pub is not None and out is not None and not out.put(pub.put, wire.pack(rec), "trace"):
-            self.counters["edge_trace"] += 1
+        if out is None or self._closed:
+            return
+        pubs = self._trace_pubs
+        for t9, r in zip(b.t9, b.rows, strict=True):
+            pub = pubs.get(r[2])
+            if pub is not None and not out.put(pub.put, wire.pack(row_record(t9, r)), "trace"):
+                self.counters["edge_trace"] += 1
 
     def _pull_poses_now(self) -> None:
         """(engine, idle hook) Apply the pose samples that have arrived by now."""

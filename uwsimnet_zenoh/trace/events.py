@@ -19,14 +19,14 @@ from .tracer import ROW_FIELDS, Batch, BatchConsumer, EventListener, Record, Row
 from .tracer import lines as make_lines
 
 __all__ = ["ROW_FIELDS", "ArrowSink", "Batch", "BatchConsumer", "CallbackSink", "EventListener", "JsonlSink",
-           "Record", "Row", "Tracer", "finite", "load_tracing_class", "record", "rounded"]
+           "Record", "Row", "Tracer", "finite", "load_tracing_class", "record", "rounded", "row_record"]
 
 _EVENTS = ("enq", "tx", "rx", "drop")
 
 
 
 
-def _row_record(t9: float, r: Row) -> Record:
+def row_record(t9: float, r: Row) -> Record:
     """`record()` of a batch row whose time is already rounded."""
     rec: Record = {"t": t9, "ev": r[1], "ch": r[2], "dev": r[3], "src": r[4], "dst": r[5], "seq": r[6],
                    "size": r[7], "flow": r[8], "kind": r[9]}
@@ -166,7 +166,7 @@ class JsonlSink:
             if i > start:
                 data = self._encode_lines(lines[start:i])
                 write(data if binary else data.decode("utf-8"))  # type: ignore[arg-type]
-            self._write(_dumps(_row_record(t9[i], rows[i])) + "\n")
+            self._write(_dumps(row_record(t9[i], rows[i])) + "\n")
             start = i + 1
         if start < len(lines):
             data = self._encode_lines(lines[start:])
