@@ -12,7 +12,7 @@ import pytest
 from conftest import device, scene, vehicle
 
 from uwsimnet_zenoh.engine.network import Network
-from uwsimnet_zenoh.kernel.realtime import RealtimeClock, run_for
+from uwsimnet_zenoh.kernel.realtime import HANDOFF_S, RealtimeClock, run_for
 from uwsimnet_zenoh.kernel.scheduler import Scheduler
 
 SLACK = 0.25     # s: what a loaded machine may add (60-80 ms seen with the suite's two workers and other jobs);
@@ -183,6 +183,34 @@ def test_poll_runs_the_idle_hooks_while_the_clock_waits(clock, far):
         assert len(calls) >= 5 if more else len(calls) == 1
         c.stop()
         assert c.join(5.0)
+
+
+def test_after_yield_to_output_the_hooks_wait_and_leave_the_interpreter_free(clock):
+    """An event that woke an output thread (`yield_to_output`) has the engine wait HANDOFF_S with the
+    interpreter free before its done and idle hooks: a Python thread runs meanwhile.  (Lower bounds only:
+    a loaded machine can make the wait longer, never shorter.)"""
+    c = clock(Scheduler())
+    seen: dict[str, float] = {}
+    ran_meanwhile = []
+    c.sched.at(0.05, lambda: (seen.setdefault("event", time.perf_counter()), c.yield_to_output()))
+    c.done_hooks.append(lambda: seen.setdefault("done", time.perf_counter()) if "event" in seen else None)
+    c.idle_hooks.append(lambda: seen.setdefault("idle", time.perf_counter()) if "event" in seen else None)
+
+    def other() -> None:          # a thread that wants the interpreter while the engine lingers
+        while "done" not in seen:
+            if "event" in seen:
+                ran_meanwhile.append(time.perf_counter())
+            time.sleep(0)
+    t = threading.Thread(target=other, daemon=True)
+    t.start()
+    c.start()
+    deadline = time.monotonic() + 5.0
+    while "idle" not in seen and time.monotonic() < deadline:
+        time.sleep(0.01)
+    t.join(5.0)
+    assert seen["done"] - seen["event"] >= 0.9 * HANDOFF_S
+    assert seen["idle"] >= seen["done"]
+    assert any(seen["event"] < x < seen["done"] for x in ran_meanwhile)
 
 
 def test_run_for_helper():
