@@ -185,32 +185,82 @@ def test_poll_runs_the_idle_hooks_while_the_clock_waits(clock, far):
         assert c.join(5.0)
 
 
-def test_after_yield_to_output_the_hooks_wait_and_leave_the_interpreter_free(clock):
-    """An event that woke an output thread (`yield_to_output`) has the engine wait HANDOFF_S with the
-    interpreter free before its done and idle hooks: a Python thread runs meanwhile.  (Lower bounds only:
-    a loaded machine can make the wait longer, never shorter.)"""
+def test_after_yield_to_output_the_hooks_wait_with_the_interpreter_free(clock):
+    """An event that woke an output thread (`yield_to_output`) has the engine wait HANDOFF_S, in a
+    Condition wait (the interpreter free for that thread), before its done and idle hooks; without it, no
+    wait.  (A lower bound only: a loaded machine can make the wait longer, never shorter.)"""
     c = clock(Scheduler())
     seen: dict[str, float] = {}
-    ran_meanwhile = []
     c.sched.at(0.05, lambda: (seen.setdefault("event", time.perf_counter()), c.yield_to_output()))
     c.done_hooks.append(lambda: seen.setdefault("done", time.perf_counter()) if "event" in seen else None)
     c.idle_hooks.append(lambda: seen.setdefault("idle", time.perf_counter()) if "event" in seen else None)
-
-    def other() -> None:          # a thread that wants the interpreter while the engine lingers
-        while "done" not in seen:
-            if "event" in seen:
-                ran_meanwhile.append(time.perf_counter())
-            time.sleep(0)
-    t = threading.Thread(target=other, daemon=True)
-    t.start()
     c.start()
     deadline = time.monotonic() + 5.0
     while "idle" not in seen and time.monotonic() < deadline:
         time.sleep(0.01)
-    t.join(5.0)
     assert seen["done"] - seen["event"] >= 0.9 * HANDOFF_S
     assert seen["idle"] >= seen["done"]
-    assert any(seen["event"] < x < seen["done"] for x in ran_meanwhile)
+
+
+def _until_waiting(c: RealtimeClock) -> None:
+    deadline = time.monotonic() + 5.0
+    while not c._waiting and time.monotonic() < deadline:     # the engine thread has reached its wait
+        time.sleep(0.001)
+    assert c._waiting
+
+
+def test_run_here_runs_on_the_calling_thread_when_the_engine_waits(clock):
+    """An idle engine: `run_here` runs the item on the caller's thread, at the time of the call, with what
+    it makes due at once (a zero-delay delivery) and the done hooks, before it returns."""
+    c = clock(Scheduler())
+    c.sched.at(3600.0, lambda: None)
+    ran: dict[str, object] = {}
+    c.done_hooks.append(lambda: ran.setdefault("done", threading.get_ident()) if "item" in ran else None)
+
+    def item() -> None:
+        ran["item"] = (threading.get_ident(), c.sched.now)
+        c.sched.after(0.0, lambda: ran.setdefault("event", threading.get_ident()))
+    c.start()
+    time.sleep(0.2)
+    _until_waiting(c)
+    me = threading.get_ident()
+    c.run_here(item)
+    assert ran["item"][0] == me and ran["event"] == me and ran["done"] == me
+    assert 0.2 <= ran["item"][1] < 0.2 + SLACK * 4
+
+
+def test_run_here_wakes_the_engine_for_an_earlier_event(clock):
+    """What the item schedules before the engine's wake-up (it waits an hour) runs at its own time."""
+    c = clock(Scheduler())
+    c.sched.at(3600.0, lambda: None)
+    got = []
+    c.start()
+    _until_waiting(c)
+    c.run_here(lambda: c.sched.after(0.3, lambda: got.append((c.sched.now, c.now()))))
+    deadline = time.monotonic() + 5.0
+    while not got and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert got, "the event made by run_here did not run"
+    modelled, wall = got[0]
+    assert 0.0 <= wall - modelled < SLACK        # at its time, not at the engine's old wake-up
+
+
+def test_run_here_queues_when_the_engine_is_busy(clock):
+    """While the engine runs an event, `run_here` does what `call_soon` does: the item runs on the engine
+    thread, after the event."""
+    c = clock(Scheduler())
+    inside, release = threading.Event(), threading.Event()
+    order = []
+    c.sched.at(0.01, lambda: (inside.set(), release.wait(5.0), order.append("event")))
+    c.start()
+    assert inside.wait(5.0)
+    c.run_here(lambda: order.append(("item", threading.current_thread().name)))
+    assert order == []
+    release.set()
+    deadline = time.monotonic() + 5.0
+    while len(order) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert order == ["event", ("item", "uwsimnet-engine")]
 
 
 def test_run_for_helper():

@@ -398,7 +398,8 @@ def _summary(acc: Any, s: dict[str, Any], net: Any) -> None:
     how = f", stopped by {end['signal']}" if end.get("signal") else (", stopped by an error"
                                                                      if end.get("reason") == "error" else "")
     console.print(f"{net.scene.name}: {s['t']:.3f} s realtime{how}, {s['events']} events (late mean"
-                  f" {s['late_mean'] * 1e6:.0f} us, max {s['late_max'] * 1e3:.2f} ms), {s['items']} messages,"
+                  f" {s['late_mean'] * 1e6:.0f} us, max {s['late_max'] * 1e3:.2f} ms), {s['items']} messages"
+                  f" ({s.get('items_here', 0)} run on arrival),"
                   f" {s['errors']} errors" + (f"; refused/ignored: {bad}" if bad else ""), soft_wrap=True)
     # the edge (docs/runtime.md): ingress delay per modem, messages lost because a consumer did not keep up
     edge = s.get("edge") or {}

@@ -15,12 +15,13 @@ on the key space of docs/gli-protocol.md:
   leaves the channel and what it held ends `dropped` reason `swapped`, its tx is ignored); when the
   token goes the device is re-added from the scene and served again.
 
-Threading: Zenoh callbacks run on Zenoh's threads and only hand raw bytes on: a tx message to its
+Threading: Zenoh callbacks run on Zenoh's threads and hand raw bytes on: a tx message to its
 modem's ingress `Lane` (bounded; the engine takes the lanes round-robin, so a flood on one modem does
-not delay the others), anything else to `clock.call_soon`.  Pose samples have no callback: they wait
-in a Zenoh ring channel that the engine takes from when it reads the geometry or idles (every 2 ms at
-least), each stamped with the time the router received it.  Decoding and simulation happen on the
-engine thread, which never makes a Zenoh put: rx, status, trace, pose and clock messages leave through
+not delay the others), run at once on the callback's thread when the engine waits (`clock.run_here`:
+one thread wake-up less, the same work under the engine's lock), anything else to `clock.call_soon`.
+Pose samples have no callback: they wait in a Zenoh ring channel that the engine takes from when it
+reads the geometry or idles (every 2 ms at least), each stamped with the time the router received it.
+Decoding and simulation never make a Zenoh put: rx, status, trace, pose and clock messages leave through
 bounded `Outbox`es (bus/outbox.py), one publisher thread each (one per modem), so a consumer that
 cannot keep up loses messages at the edge, counted per modem (`info` "edge", the run summary), and
 never stalls the engine or another modem.  A bad message never stops the broker: it is answered on
@@ -323,7 +324,7 @@ class Broker:
         item = (self.clock.now(), dev, raw, size)
         r = lane.offer(item)
         if r:
-            self.clock.call_soon(self._drain_lane, lane)
+            self.clock.run_here(self._drain_lane, lane)     # here if the engine waits, else its inbox
         elif r is None:
             self._lane_full(lane, dev, raw)
 
