@@ -17,6 +17,7 @@ import pytest
 from uwsimnet_zenoh.analysis import conservation
 from uwsimnet_zenoh.experiments import hil_spec as spec
 from uwsimnet_zenoh.experiments.hil_apps import Follower, Goto, Leader, Send, first_due, make_app
+from uwsimnet_zenoh.experiments.hil_formation import delivery
 
 pytest.importorskip("uwsimnet_gli")
 DURATION = 34.0
@@ -50,6 +51,28 @@ def test_formation_errors_follow_the_papers_definition():
     assert e["follower1"] == pytest.approx(0.0)          # exactly at leader + (-1.5, 0)
     assert e["follower2"] == pytest.approx(1.0)
     assert "follower3" not in e
+
+
+def _rec(ev: str, dev: str, src: int, seq: int, dst: int, reason: str | None = None) -> dict:
+    r = {"t": 1.0, "ev": ev, "ch": 0, "dev": dev, "src": src, "dst": dst, "seq": seq, "size": 24, "flow": None,
+         "kind": "data"}
+    return r | ({"reason": reason} if reason else {})
+
+
+def test_delivery_leaves_out_only_what_the_stop_left_without_an_outcome():
+    """A frame lost (retry) counts against delivery; one still queued at the stop (`stopped`) does not, for
+    the receivers that had not got it; a broadcast that reached one follower before the stop counts there."""
+    op, ld = spec.OPERATOR[1], spec.VEHICLES["leader"][0]
+    recs = [_rec("enq", "operator-modem", op, s, ld) for s in range(3)]
+    recs += [_rec("rx", "leader-modem", op, 0, ld), _rec("drop", "operator-modem", op, 1, ld, "retry"),
+             _rec("drop", "operator-modem", op, 2, ld, "stopped")]
+    recs += [_rec("enq", "leader-modem", ld, s, 255) for s in range(2)]
+    recs += [_rec("rx", "follower1-modem", ld, 0, 255), _rec("rx", "follower2-modem", ld, 0, 255),
+             _rec("rx", "follower1-modem", ld, 1, 255), _rec("drop", "leader-modem", ld, 1, 255, "stopped")]
+    d = delivery(recs)
+    assert d["waypoints"] == 0.5                      # 1 of 2: the stopped one is out, the retried one is not
+    assert d["leader_positions"] == 3 / 4             # frame 0: 2 of 3; frame 1: follower1 got it, 1 of 1
+    assert d["telemetry"] == 0.0                      # no telemetry frame at all
 
 
 def test_one_command_runs_the_hil_experiment_as_processes(tmp_path: Path):

@@ -51,11 +51,17 @@ from .hil_spec import (
 
 def delivery(records: Iterable[dict[str, Any]]) -> dict[str, float]:
     """Share of the applications' frames delivered, from trace records (data frames only): waypoints
-    (operator -> leader), leader positions (per follower), telemetry (followers -> operator)."""
+    (operator -> leader), leader positions (per follower), telemetry (followers -> operator).  A frame
+    the run ended before it had an outcome (drop `stopped`: still queued under S-FAMA's seconds of
+    queueing when the processes were stopped) is not counted for a receiver that had not got it: where
+    the stop falls is the machine's timing, not the channel's."""
     enq: Counter[str] = Counter()
     rx: Counter[tuple[str, int]] = Counter()
     img_enq: Counter[str] = Counter()
     img_rx: Counter[str] = Counter()
+    got: dict[tuple[str, int], set[str]] = {}       # (transmitter, seq) -> receivers
+    stopped: list[tuple[str, int]] = []
+    addr = {a: f"{n}-modem" for n, (a, *_) in VEHICLES.items()} | {OPERATOR[1]: "operator-modem"}
     for r in records:
         if r.get("kind") != "data":
             continue
@@ -69,14 +75,23 @@ def delivery(records: Iterable[dict[str, Any]]) -> dict[str, float]:
             enq[r["dev"]] += 1
         elif r.get("ev") == "rx":
             rx[(r["dev"], r["src"])] += 1
+            got.setdefault((addr.get(r["src"], ""), r["seq"]), set()).add(r["dev"])
+        elif r.get("ev") == "drop" and r.get("reason") == "stopped":
+            stopped.append((r["dev"], r["seq"]))
     leader, op = VEHICLES["leader"][0], OPERATOR[1]
-    followers = [n for n in VEHICLES if n != "leader"]
+    followers = [f"{n}-modem" for n in VEHICLES if n != "leader"]
+    unfinished: Counter[tuple[str, str]] = Counter()     # (transmitter, receiver) -> frames without outcome
+    for dev, seq in stopped:
+        for to in ({"operator-modem": ["leader-modem"], "leader-modem": followers}.get(dev, ["operator-modem"])):
+            if to not in got.get((dev, seq), ()):
+                unfinished[(dev, to)] += 1
     return {
-        "waypoints": rx[("leader-modem", op)] / max(1, enq["operator-modem"]),
-        "leader_positions": sum(rx[(f"{n}-modem", leader)] for n in followers)
-        / max(1, len(followers) * enq["leader-modem"]),
-        "telemetry": sum(rx[("operator-modem", VEHICLES[n][0])] for n in followers)
-        / max(1, sum(enq[f"{n}-modem"] for n in followers)),
+        "waypoints": rx[("leader-modem", op)]
+        / max(1, enq["operator-modem"] - unfinished[("operator-modem", "leader-modem")]),
+        "leader_positions": sum(rx[(f, leader)] for f in followers)
+        / max(1, sum(enq["leader-modem"] - unfinished[("leader-modem", f)] for f in followers)),
+        "telemetry": sum(rx[("operator-modem", VEHICLES[f.removesuffix("-modem")][0])] for f in followers)
+        / max(1, sum(enq[f] - unfinished[(f, "operator-modem")] for f in followers)),
         **({"images": sum(img_rx.values()) / max(1, sum(img_enq.values()))} if img_enq else {}),
     }
 
