@@ -39,7 +39,7 @@ def hello_world(dev0: str = "", dev1: str = "", flows: str = "", third: str = ""
 def _run(text: str, until: float = 10.0) -> list[dict]:
     net = Network(load_scene_text(text, "t.xml", on_warning=lambda _w: None), seed=1, duration=until)
     recs: list[dict] = []
-    net.tracer.sinks.append(recs.append)
+    net.tracer.add(recs.append)
     net.run()
     return recs
 

@@ -42,7 +42,8 @@ import zenoh
 from uwsimnet_gli import wire
 from uwsimnet_gli.wire import Keys, check_chunk, is_chunk, parse
 
-from ..trace.events import Batch, row_record
+from ..trace.events import Batch, Listener, row_record
+from ..trace.tracer import FRAME_EVENTS
 from .control import Control
 from .endpoint import BLOCK, ModemEndpoint
 from .hil import RETOKEN, SWAP_IN, SWAP_OUT, HilSwap
@@ -107,6 +108,22 @@ class Endpoint(ModemEndpoint):
         self.bad: Counter[str] = Counter()      # messages refused before reaching the modem, by reason
 
 
+class _Output(Listener):
+    """The broker on the output port: the rx (frames handed up: kind data) and status events of the
+    modems it serves go to their endpoints' outboxes at once; the trace goes at idle (`_trace_batch`)."""
+
+    def __init__(self, broker: Broker) -> None:
+        self.broker = broker
+
+    def event(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None, fifo: int | None,
+              dist: Any, implicit: Any) -> None:
+        if ev == "rx":
+            if frame.kind == "data":
+                self.broker._on_rx(dev, frame, t, dist)
+        elif ev not in FRAME_EVENTS:
+            self.broker._on_status(dev, frame, ev, reason, t)
+
+
 class Broker:
     def __init__(self, session: zenoh.Session, net: Network, clock: RealtimeClock, *,
                  world: str | None = None, channels: Iterable[int] | None = None,
@@ -152,8 +169,8 @@ class Broker:
         """Outboxes holding non-urgent messages (statuses) whose thread is to be woken (_wake_outboxes)."""
         self._misc = self._outbox("*misc", outbox_capacity)
         self._trace_out: Outbox | None = None
-        self._leaving: dict[Modem, Outbox] = {}
-        """Simulated modems handed to a real driver: what they still say goes out here (HIL swap)."""
+        self._leaving: dict[str, Outbox] = {}
+        """Simulated modems handed to a real driver, by id: what they still say goes out here (HIL swap)."""
         self._entities: list[Any] = []
         self._trace_pubs: dict[int, Any] = {}
         self._pose_pubs: dict[str, Any] = {}
@@ -189,6 +206,7 @@ class Broker:
             check_chunk(dev, "dccommsId")
         for m in list(net.modems.values()):
             self.attach(m)
+        net.tracer.listen(_Output(self), statuses=True)
         ent = self._entities
         cb = _direct
         ent.append(s.declare_subscriber(k.tx_all, cb(self._on_tx_sample)))
@@ -282,8 +300,7 @@ class Broker:
         self.foreign.discard(m.id)
         if m.id not in self.real:
             ep.token = s.liveliness().declare_token(k.driver(m.id, "sim"))
-        m.on_receive.append(self._on_rx)
-        m.on_status.append(self._on_status)
+        self._leaving.pop(m.id, None)
         return ep
 
     def detach(self, dev: str) -> None:
@@ -483,28 +500,28 @@ class Broker:
             self.warn(f"nopose:{dev}", "%s: tx dropped (nopose): vehicle %s has no pose yet", dev, m.vehicle)
         m.send(req.dst, len(req.data), data=req.data, flow=req.flow, tag=req.tag, refuse=refuse, msg=req.msg)
 
-    def _on_rx(self, m: Modem, frame: Frame, t: float, dist: float) -> None:
-        ep = self.serving(m.id)
+    def _on_rx(self, dev: str, frame: Frame, t: float, dist: float) -> None:
+        ep = self.serving(dev)
         if ep is None:
             return
         data = frame.data if frame.data is not None else bytes(frame.payload)
         if not ep.rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, dist, frame.msg):
-            self._edge_drop(m.id, "rx")
+            self._edge_drop(dev, "rx")
 
-    def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
+    def _on_status(self, dev: str, frame: Frame, event: str, reason: str | None, t: float) -> None:
         tag = frame.tag if isinstance(frame.tag, int) and not isinstance(frame.tag, bool) else None
-        leaving = self._leaving.get(m)
+        leaving = self._leaving.get(dev)
         if leaving is not None:
             # a simulated modem handed to a real driver: what it still held ends here, said once
             if event == "dropped" and reason == "removed":
                 reason = "swapped"
-            leaving.put(self._put_status(m.id), wire.encode_status(tag, event, reason, t, frame.seq), "status")
+            leaving.put(self._put_status(dev), wire.encode_status(tag, event, reason, t, frame.seq), "status")
             return
-        ep = self.serving(m.id)
-        if ep is None or ep.modem is not m:
+        ep = self.serving(dev)
+        if ep is None:
             return
         if not ep.status(tag, event, reason, t, frame.seq):
-            self._edge_drop(m.id, "status")
+            self._edge_drop(dev, "status")
 
     def _edge_drop(self, dev: str, kind: str) -> None:
         self.counters[f"edge_{kind}"] += 1
@@ -617,7 +634,7 @@ class Broker:
         if ep.token is not None:
             self._undeclare(ep.token)
             ep.token = None
-        self._leaving[m] = self._misc             # see _on_status
+        self._leaving[dev] = self._misc           # see _on_status
         while m.fifo:
             m.drop(m.fifo_pop(), "swapped")
         self.hil.swapped_out(dev, m.vehicle, m.cfg)

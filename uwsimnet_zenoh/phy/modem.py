@@ -23,11 +23,6 @@ if TYPE_CHECKING:
     from ..trace.tracer import Tracer
     from .channel import Channel
 
-RxCallback = Callable[["Modem", Frame, float, float], None]
-"""(modem, frame, t, dist): a frame delivered at `t`, `dist` m from its transmitter at transmission start."""
-StatusCallback = Callable[["Modem", Frame, str, "str | None", float], None]
-
-
 class DeviceParams(Protocol):
     """The device parameters a modem reads (`scene.model.Device` has them; phy never imports the scene)."""
 
@@ -108,8 +103,6 @@ class Modem(MacContext):
         self.loss_random = random.Random(seeds("loss", self.id)).random
         self._jitter = random.Random(seeds("jitter", self.id))
         self.random = random.Random(seeds("mac", self.id)).random
-        self.on_receive: list[RxCallback] = []
-        self.on_status: list[StatusCallback] = []
         self.enqueued = 0               # frames offered, transmissions, deliveries, drops (`counters`)
         self.transmitted = 0
         self.delivered = 0
@@ -178,7 +171,7 @@ class Modem(MacContext):
                              self.fifo_bytes + (0 if direct else size))
             self.fifo.append(frame)
             self.fifo_bytes += size
-            if self.on_status:
+            if self.tracer.watchers:
                 self.status(frame, "queued")
             mac.on_queue()
         return frame
@@ -248,8 +241,6 @@ class Modem(MacContext):
         # a frame for another address handed up anyway (no MAC: the original's implicit broadcast)
         implicit = frame.dst != BROADCAST and frame.dst != self.address
         self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist, implicit=implicit)
-        for cb in self.on_receive:
-            cb(self, frame, now, dist)
 
     def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
         """Give `frame` up: traced `drop` with `reason`, and its final status `event` (`dropped`; a MAC
@@ -257,12 +248,12 @@ class Modem(MacContext):
         frame.final = reason
         self.dropped += 1
         self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason, self.fifo_bytes)
-        if self.on_status:
+        if self.tracer.watchers:
             self.status(frame, event, reason)
 
     def status(self, frame: Frame, event: str, reason: str | None = None) -> None:
-        for cb in self.on_status:
-            cb(self, frame, event, reason, self.sched.now)
+        """A status of `frame` for its sender (the output port's `status`)."""
+        self.tracer.status(self.sched.now, event, self.tx_channel.id, self.id, frame, reason)
 
     def tx_time(self, size: int) -> float:
         return size * 8.0 / self.bitrate
