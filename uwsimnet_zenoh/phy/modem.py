@@ -21,7 +21,6 @@ from ..kernel.link import MacContext, MacHooks
 if TYPE_CHECKING:
     from ..kernel.scheduler import Scheduler
     from ..trace.tracer import Tracer
-    from .channel import Channel
 
 class DeviceParams(Protocol):
     """The device parameters a modem reads (`scene.model.Device` has them; phy never imports the scene)."""
@@ -39,6 +38,23 @@ class DeviceParams(Protocol):
     jitter_tx_s: float
     jitter_rx_s: float
     tx_framing: str | None          # a dccomms packet builder (phy.framing), or None: no framing
+
+
+class Medium(Protocol):
+    """What a modem asks the channels it sends and listens on (phy.channel.Channel is one): declared here,
+    by the modem, so that the channel, which calls the modem, is the only one of the two to import the other."""
+
+    id: int
+    min_prop_s: float
+    prop_s_per_m: float
+
+    def attach(self, modem: Modem) -> int: ...
+    def detach(self, modem: Modem) -> None: ...
+    def has_address(self, address: int) -> bool: ...
+    def max_prop_delay(self, max_distance: float) -> float: ...
+    def transmit(self, sender: Modem, frame: Frame, dur: float) -> None: ...
+    def busy(self, slot: int) -> bool: ...
+    def busy_until(self, slot: int) -> float: ...
 
 
 class LossModel(Protocol):
@@ -63,7 +79,7 @@ class Modem(MacContext):
     it through `MacHooks` (mac.Mac is one): phy never imports mac."""
 
     def __init__(self, cfg: DeviceParams, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
-                 tx_channel: Channel, rx_channel: Channel, seeds: Callable[[str, str], int],
+                 tx_channel: Medium, rx_channel: Medium, seeds: Callable[[str, str], int],
                  error: LossModel) -> None:
         self.cfg = cfg
         self.id = cfg.dccomms_id
@@ -74,6 +90,8 @@ class Modem(MacContext):
         self.tracer = tracer
         self.tx_channel = tx_channel
         self.rx_channel = rx_channel
+        self._tx_ch = tx_channel.id                   # the channel ids its events carry (read once: the
+        self._rx_ch = rx_channel.id                   # channel is a Protocol here, an attribute a lookup)
         self.bitrate = cfg.bitrate
         self.header_bytes = cfg.header_bytes
         name = getattr(cfg, "tx_framing", None)
@@ -161,13 +179,13 @@ class Modem(MacContext):
                     and not self.tx_channel.has_address(dst):
                 refuse = "noaddr"           # nobody on the channel has that address: say so now
         if refuse is not None:
-            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
+            self.tracer.emit(now, "enq", self._tx_ch, self.id, frame, fifo=self.fifo_bytes)
             self.drop(frame, refuse)
         elif not direct and self.fifo_bytes + size > self.fifo_cap:
-            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
+            self.tracer.emit(now, "enq", self._tx_ch, self.id, frame, fifo=self.fifo_bytes)
             self.drop(frame, "fifo")
         else:
-            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, None,
+            self.tracer.emit(now, "enq", self._tx_ch, self.id, frame, None,
                              self.fifo_bytes + (0 if direct else size))
             self.fifo.append(frame)
             self.fifo_bytes += size
@@ -209,7 +227,7 @@ class Modem(MacContext):
         now = self.sched.now
         frame.t_tx = now
         self.transmitted += 1
-        self.tracer.emit(now, "tx", self.tx_channel.id, self.id, frame, None, self.fifo_bytes)
+        self.tracer.emit(now, "tx", self._tx_ch, self.id, frame, None, self.fifo_bytes)
         dur = frame.size * 8.0 / self.bitrate
         self.tx_channel.transmit(self, frame, dur)
         self.sched.at(now + dur, self._tx_end_at, frame)       # = after(dur): the same double
@@ -240,27 +258,27 @@ class Modem(MacContext):
         self.delivered += 1
         # a frame for another address handed up anyway (no MAC: the original's implicit broadcast)
         implicit = frame.dst != BROADCAST and frame.dst != self.address
-        self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist, implicit=implicit)
+        self.tracer.emit(now, "rx", self._rx_ch, self.id, frame, dist=dist, implicit=implicit)
 
     def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
         """Give `frame` up: traced `drop` with `reason`, and its final status `event` (`dropped`; a MAC
         that gave up after its retries says `failed`)."""
         frame.final = reason
         self.dropped += 1
-        self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason, self.fifo_bytes)
+        self.tracer.emit(self.sched.now, "drop", self._tx_ch, self.id, frame, reason, self.fifo_bytes)
         if self.tracer.watchers:
             self.status(frame, event, reason)
 
     def status(self, frame: Frame, event: str, reason: str | None = None) -> None:
         """A status of `frame` for its sender (the output port's `status`)."""
-        self.tracer.status(self.sched.now, event, self.tx_channel.id, self.id, frame, reason)
+        self.tracer.status(self.sched.now, event, self._tx_ch, self.id, frame, reason)
 
     def tx_time(self, size: int) -> float:
         return size * 8.0 / self.bitrate
 
     def trace_rx(self, frame: Frame) -> None:
         """A MAC control frame reached its MAC intact: traced as `rx`, not handed to the application."""
-        self.tracer.emit(self.sched.now, "rx", self.rx_channel.id, self.id, frame, dist=self._rx_dist)
+        self.tracer.emit(self.sched.now, "rx", self._rx_ch, self.id, frame, dist=self._rx_dist)
 
     def max_prop_delay(self, distance: float | None = None) -> float:
         return self.tx_channel.max_prop_delay(self.max_distance if distance is None else distance)
