@@ -79,8 +79,18 @@ def rounded(xs: Sequence[Any], ndigits: int) -> list[Any]:
     others (zero, negative, too large, not finite) and ints (round(3, 9) is 3) go to `round` itself."""
     scale = 10.0 ** ndigits
     out: list[Any] = []
+    prev = math.nan                     # events come in runs at one time (enq then tx, a frame's receptions):
+    r: Any = None                       # a time equal to the previous one has its rounding
     for x in xs:
-        out.append(round_fast(x, scale, ndigits) if type(x) is float else round(x, ndigits))
+        if type(x) is float:
+            xf: float = x
+            if xf != prev or xf <= 0.0:     # (-0.0 equals 0.0 but is another record)
+                r = round_fast(xf, scale, ndigits)
+                prev = xf
+            out.append(r)
+        else:
+            out.append(round(x, ndigits))
+            prev = math.nan
     return out
 
 
