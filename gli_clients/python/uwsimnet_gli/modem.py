@@ -49,7 +49,7 @@ class WorldLike(Protocol):
 class Modem:
     def __init__(self, world: WorldLike, dev: str, *, buffer: int = 4096,
                  on_receive: Callable[[Frame], Any] | None = None,
-                 on_status: Callable[[Status], Any] | None = None) -> None:
+                 on_status: Callable[[Status], Any] | None = None, watch_kind: bool = True) -> None:
         self.world = world
         self.id = check_chunk(dev, "modem id")
         k = world.keys
@@ -70,8 +70,10 @@ class Modem:
         self._subs = [
             s.declare_subscriber(k.modem(self.id, "rx"), self._on_rx),
             s.declare_subscriber(k.modem(self.id, "status"), self._on_status),
-            s.liveliness().declare_subscriber(k.modem(self.id, "driver/*"), self._on_driver, history=True),
         ]
+        if watch_kind:          # who serves it (`kind`); False: a program whose role may not watch
+            self._subs.append(s.liveliness().declare_subscriber(k.modem(self.id, "driver/*"), self._on_driver,
+                                                                history=True))
         world._modems.append(self)
 
     def __repr__(self) -> str:
