@@ -16,7 +16,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 from ..kernel.frame import BROADCAST, Frame
-from ..kernel.link import MacContext, MacHooks
+from ..kernel.link import MacContext, MacHooks, Medium
 
 if TYPE_CHECKING:
     from ..kernel.scheduler import Scheduler
@@ -38,23 +38,6 @@ class DeviceParams(Protocol):
     jitter_tx_s: float
     jitter_rx_s: float
     tx_framing: str | None          # a dccomms packet builder (phy.framing), or None: no framing
-
-
-class Medium(Protocol):
-    """What a modem asks the channels it sends and listens on (phy.channel.Channel is one): declared here,
-    by the modem, so that the channel, which calls the modem, is the only one of the two to import the other."""
-
-    id: int
-    min_prop_s: float
-    prop_s_per_m: float
-
-    def attach(self, modem: Modem) -> int: ...
-    def detach(self, modem: Modem) -> None: ...
-    def has_address(self, address: int) -> bool: ...
-    def max_prop_delay(self, max_distance: float) -> float: ...
-    def transmit(self, sender: Modem, frame: Frame, dur: float) -> None: ...
-    def busy(self, slot: int) -> bool: ...
-    def busy_until(self, slot: int) -> float: ...
 
 
 class LossModel(Protocol):
@@ -90,8 +73,8 @@ class Modem(MacContext):
         self.tracer = tracer
         self.tx_channel = tx_channel
         self.rx_channel = rx_channel
-        self._tx_ch = tx_channel.id                   # the channel ids its events carry (read once: the
-        self._rx_ch = rx_channel.id                   # channel is a Protocol here, an attribute a lookup)
+        self._tx_ch = tx_channel.id                   # the channel ids its events carry (read once)
+        self._rx_ch = rx_channel.id
         self.bitrate = cfg.bitrate
         self.header_bytes = cfg.header_bytes
         name = getattr(cfg, "tx_framing", None)

@@ -190,9 +190,24 @@ class Batcher(Listener):
         self.batch = batch
         self.rows: list[Row] = []
         self.consumers: list[BatchConsumer] = []
+        self.t9: list[Any] = []             # the rows' record times (Batch.t9), made as they come:
+        self._t_prev = math.nan             # events come in runs at one time (enq then tx, a frame's
+        self._t9_prev: Any = None           # receptions), so most take the previous one's rounding
 
     def event(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None, fifo: int | None,
               dist: Any, implicit: Any) -> None:
+        if type(t) is float:                # (analysis.fold.Fold.event rounds the same way, for itself)
+            tf: float = t
+            if tf == self._t_prev:
+                t9: Any = self._t9_prev
+            else:
+                t9 = round_fast(tf, 1e9, 9)
+                if tf > 0.0:                # (never -0.0, which equals 0.0 but is another record)
+                    self._t_prev = tf
+                    self._t9_prev = t9
+        else:
+            t9 = round(t, 9)
+        self.t9.append(t9)
         rows = self.rows
         rows.append((t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
                      reason, fifo, dist, implicit))
@@ -204,7 +219,9 @@ class Batcher(Listener):
         if not rows:
             return
         self.rows = []
-        b = Batch(rows)
+        t9 = self.t9
+        self.t9 = []
+        b = Batch(rows, t9)
         for fn in self.consumers:
             fn(b)
 
