@@ -20,9 +20,8 @@ from uwsimnet_zenoh.bridges import socket_wire as sw
 from uwsimnet_zenoh.bridges.mq_bridge import GliQueueClient, MqBridge
 from uwsimnet_zenoh.bridges.socket_bridge import SocketBridge
 from uwsimnet_zenoh.bridges.socket_client import SocketBridgeClient
-from uwsimnet_zenoh.drivers import dccomms_framing as dl
 from uwsimnet_zenoh.drivers.sim_backend import SimWorld
-from uwsimnet_zenoh.phy import framing as fr
+from uwsimnet_zenoh.formats import dccomms as fr
 
 WAIT = 15.0  # an upper bound only: until() returns as soon as the condition holds
 C_SOURCE = Path(__file__).resolve().parent.parent / "gli_clients" / "c" / "gli_socket_client.c"
@@ -192,7 +191,7 @@ def qname():
         return n
     yield make
     for n in names:
-        for q in (dl.tx_queue_name(n), dl.rx_queue_name(n)):
+        for q in (fr.tx_queue_name(n), fr.rx_queue_name(n)):
             posix_mq.MessageQueue.unlink(q)
 
 
@@ -248,13 +247,13 @@ def test_dccomms_queue_client_exchanges_frames_with_a_python_client(world, closi
     py.send(3, b"to dccomms", tag=4)
     f = app.receive(WAIT)
     assert f is not None and (f.src, f.dst, f.payload) == (2, 3, b"to dccomms")
-    assert app.phy_state == dl.PHY_READY       # every frame the app wrote was answered READY
+    assert app.phy_state == fr.PHY_READY       # every frame the app wrote was answered READY
     # a corrupted frame and a garbage message are refused (WARNING, counted); REQ_STATE is answered
     bad = bytearray(app.message(2, b"broken"))
     bad[1 + 6 + 6] ^= 0xFF                      # the FCS
     app.send_raw(bytes(bad))
     app.tx.send(b"\x09junk")
-    app.tx.send(dl.gli_req_state())
+    app.tx.send(fr.req_state_message())
     app.send(2, b"after the junk")
     m = py.receive(WAIT)
     assert m is not None and m.data == b"after the junk"
@@ -301,8 +300,8 @@ def test_messages_in_the_real_layout_go_through_both_ways(world, closing, qname,
     mq.start()
     closing.append(mq)
     world.start()
-    tx = posix_mq.MessageQueue.open(dl.tx_queue_name(cid), read=False, write=True)
-    rx = posix_mq.MessageQueue.open(dl.rx_queue_name(cid), read=True, write=False)
+    tx = posix_mq.MessageQueue.open(fr.tx_queue_name(cid), read=False, write=True)
+    rx = posix_mq.MessageQueue.open(fr.rx_queue_name(cid), read=True, write=False)
     closing += [tx, rx]
     py = SocketBridgeClient("127.0.0.1", brb.tcp_port)
     closing.append(py)
@@ -315,7 +314,7 @@ def test_messages_in_the_real_layout_go_through_both_ways(world, closing, qname,
     while True:
         msg = rx.receive(WAIT)
         assert msg is not None
-        if msg[0] == dl.MSG_FRAME:
+        if msg[0] == fr.MSG_FRAME:
             break
     assert len(msg) == v["message_size"]
     frame_len = v["packet_size"]

@@ -18,7 +18,7 @@ from uwsimnet_gli import World  # noqa: E402
 
 from uwsimnet_zenoh.bridges import posix_mq  # noqa: E402
 from uwsimnet_zenoh.bridges.mq_bridge import GliQueueClient  # noqa: E402
-from uwsimnet_zenoh.drivers import dccomms_framing as dl  # noqa: E402
+from uwsimnet_zenoh.formats import dccomms as fr  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 WORLD = "hilbridge"
@@ -96,7 +96,7 @@ def test_c_client_and_mq_client_through_the_simulator(tmp_path: Path, c_client):
             proc.kill()
             proc.wait(5)
         errors = stop_all(started)
-        for q in (dl.tx_queue_name(cid), dl.rx_queue_name(cid)):
+        for q in (fr.tx_queue_name(cid), fr.rx_queue_name(cid)):
             with contextlib.suppress(Exception):
                 posix_mq.MessageQueue.unlink(q)
         assert not errors, errors

@@ -75,7 +75,7 @@ def test_serial_driver_serves_a_modem_id(tmp_path: Path):
     simulation: frames put on b-m's keys go out on that radio link, and what it receives comes back."""
     from conftest import device, scene, vehicle
 
-    from uwsimnet_zenoh.drivers.emulators import SerialRadioEmulator
+    from uwsimnet_zenoh.drivers.dccomms.emulator import SerialRadioEmulator
     from uwsimnet_zenoh.drivers.sim_backend import SimWorld
     from uwsimnet_zenoh.scene.model import Channel
 
