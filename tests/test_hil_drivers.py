@@ -114,3 +114,113 @@ def test_serial_driver_serves_a_modem_id(tmp_path: Path):
         emu.close()
         radio.close()
         assert not errors, errors
+
+
+# -- the driver port: a driver and an emulator from a separately installed package (entry points) -------------
+PLUGIN = '''"""acme_modems: a vendor's S2C-compatible modem, shipped as its own package (a uwsimnet driver plug-in)."""
+from uwsimnet_zenoh.drivers.registry import DriverPlugin, EmulatorPlugin
+
+
+def _driver_args(p):
+    p.add_argument("--modem", required=True, metavar="HOST:PORT")
+
+
+def _open(args, ctx):
+    from uwsimnet_zenoh.drivers.evologics.driver import EvoLogicsDriver
+
+    host, _, port = args.modem.rpartition(":")
+    return EvoLogicsDriver(host, int(port), ctx.id, mode="im")
+
+
+def _emulator_args(p):
+    p.add_argument("--tcp", type=int, required=True, metavar="PORT")
+
+
+def _start(args, backend):
+    from uwsimnet_zenoh.drivers.evologics.emulator import EvoLogicsEmulator
+
+    emu = EvoLogicsEmulator(backend, "127.0.0.1", args.tcp)
+    host, port = emu.start()
+    return emu, f"acme {host}:{port}"
+
+
+def helper():
+    return 42
+
+
+DRIVER = DriverPlugin("ACME S2C-compatible modem (instant messages only)", _driver_args, _open)
+EMULATOR = EmulatorPlugin("ACME modem emulator", _emulator_args, _start)
+'''
+ENTRY_POINTS = """[uwsimnet.drivers]
+acme = acme_modems:DRIVER
+broken = acme_modems:MISSING
+notaplugin = acme_modems:helper
+
+[uwsimnet.emulators]
+acme = acme_modems:EMULATOR
+"""
+
+
+@pytest.fixture
+def installed_plugin(tmp_path: Path, monkeypatch):
+    """acme_modems installed as a package of its own (its code and its dist-info on the path), as pip would."""
+    site = tmp_path / "site"
+    (site / "acme_modems").mkdir(parents=True)
+    (site / "acme_modems" / "__init__.py").write_text(PLUGIN)
+    info = site / "acme_modems-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: acme-modems\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(ENTRY_POINTS)
+    import os
+
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(site), os.environ.get("PYTHONPATH")) if p))
+    return site
+
+
+def test_a_driver_and_an_emulator_plugin_serve_through_the_channel(installed_plugin, tmp_path: Path):
+    scene = tmp_path / "hil.xml"
+    scene.write_text(scene_xml(world=WORLD, vehicles="".join([
+        vehicle_xml("a", (0, 0, 0), device_xml("a-m", 1)),
+        vehicle_xml("b", (50, 0, 0), device_xml("b-m", 2)),
+        vehicle_xml("c", (100, 0, 0), device_xml("c-m", 3)),
+    ])))
+    started: list[Proc] = []
+    try:
+        broker = Broker(scene, tmp_path / "trace.jsonl")
+        started.append(broker)
+        port = free_port()
+        emu = Proc([*UWSIMNET, "emulate", "acme", "--tcp", str(port), "--id", "a-m", "--world", WORLD,
+                    "--connect", broker.endpoint])
+        started.append(emu)
+        emu.expect(f"uwsimnet: emulator acme ready for {WORLD}/a-m on acme 127.0.0.1:{port}", 20)
+        drv = Proc([*UWSIMNET, "driver", "acme", "--modem", f"127.0.0.1:{port}", "--id", "b-m",
+                    "--connect", broker.endpoint])
+        started.append(drv)
+        drv.expect("uwsimnet: driver acme ready", 20)
+        with World(WORLD, connect=broker.endpoint) as w:
+            b, c = w.modem("b-m"), w.modem("c-m")
+            assert b.wait_kind(("real",), timeout=5) == "real"
+            tag = b.send(3, b"from a plug-in")
+            f = c.receive(timeout=10)
+            assert f is not None and f.data == b"from a plug-in" and f.src == 1 and f.dst == 3
+            st = b.wait_status(tag, events=("acked", "failed", "dropped"), timeout=10)
+            assert st is not None and st.event == "acked", st
+    finally:
+        errors = stop_all(started)
+        assert not errors, errors
+
+
+@pytest.mark.parametrize("argv,line", [
+    (["driver", "broken", "--id", "x"], "driver plug-in 'broken' (acme_modems:MISSING) does not load: AttributeError"),
+    (["driver", "notaplugin", "--id", "x"],
+     "driver plug-in 'notaplugin' (acme_modems:helper) is a function, not a"
+     " uwsimnet_zenoh.drivers.registry.DriverPlugin"),
+    (["emulate", "nosuch", "--id", "x"], "unknown emulator 'nosuch' (known: evologics, serial, acme;"),
+    (["driver", "nosuch", "--id", "x"], "unknown driver 'nosuch' (known: evologics, serial, acme, broken, notaplugin;"),
+])
+def test_bad_plugins_are_refused_in_one_line(installed_plugin, argv, line):
+    import subprocess
+
+    r = subprocess.run([*UWSIMNET, *argv, "--connect", "tcp/127.0.0.1:1"], capture_output=True, text=True, timeout=60)
+    assert (r.returncode, r.stdout) == (2, "")
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith(line), r.stderr
