@@ -22,7 +22,8 @@ broker publishes in the modem's info; DataLinkFrame CRC16 when there is none, th
   WARNING with the reason and counted (`info()["refused"]`); it is still answered READY so that the
   application, which marked the PHY busy when it wrote, does not wait forever.
 * modem -> app: every frame is written as a FRAME message in the receiving framing, with the virtual
-  area filled as the original simulator did: seq, src = the sender's address, dst.
+  area filled as the original simulator did: seq = the sending application's (its virtual area's, carried as
+  the wire's `aseq`; the modem's seq when the sender set none), src = the sender's address, dst.
 
 `GliQueueClient` is the application side (what `CommsDeviceService` does), for tests and Python programs.
 """
@@ -38,6 +39,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..drivers._aio import LoopThread
+from ..drivers.app_seq import AppSeq, app_seq
 from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend, detach
 from ..formats import dccomms as fr
 from .posix_mq import MessageQueue, MqError
@@ -230,7 +232,9 @@ class MqBridge:
         if m.packet.src is not None and m.packet.src != self.backend.address:
             self.counters["src_mismatch"] += 1
         self.counters["tx"] += 1
-        self.backend.send(dst, m.packet.payload)
+        # the application's own seq (its virtual area's; a frame-only SimplePacket: its frame's) goes along
+        seq = m.va.seq if m.va is not None else m.packet.seq
+        self.backend.send(dst, m.packet.payload, msg=None if seq is None else AppSeq(seq))  # type: ignore[arg-type]
 
     # -- modem -> application -----------------------------------------------------------------------
     def _bk_frame(self, f: BackendFrame) -> None:
@@ -240,7 +244,9 @@ class MqBridge:
                 or rf.check_payload(len(f.data)) is not None:
             self.counters["rx_unrepresentable"] += 1
             return
-        seq = f.seq if f.seq is not None and f.seq >= 0 else self._seq
+        seq = app_seq(f)
+        if seq is None:                 # an application that set none (on Zenoh): the modem's seq, else ours
+            seq = f.seq if f.seq is not None and f.seq >= 0 else self._seq
         self._seq += 1
         msg = fr.frame_message(rf, rf.encode(f.data, dst=f.dst, src=f.src), fr.VirtualArea(seq, f.src, f.dst))
         self._io.call(self._queue_out, msg, True)

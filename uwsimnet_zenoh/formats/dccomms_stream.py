@@ -26,6 +26,7 @@ class Frame:
     payload: bytes
     kind: str = "data"
     fields: dict[str, int] | None = None
+    seq: int | None = None          # SimplePacket: its sequence number (the first two payload bytes)
 
 
 @dataclass(frozen=True)
@@ -210,7 +211,7 @@ class FrameDecoder:
             self.counters["frames"] += 1
             dst = p.dst if p.dst is not None else BROADCAST
             src = p.src if p.src is not None else 0
-            out.append(FrameReceived(Frame(dst, src, p.payload, p.kind, p.fields), raw))
+            out.append(FrameReceived(Frame(dst, src, p.payload, p.kind, p.fields, p.seq), raw))
             del buf[:total]
 
 

@@ -120,7 +120,10 @@ class SerialRadioDriver(Driver):
                 if not self.promiscuous and f.dst not in (self.address, ds.BROADCAST):
                     self.counters["rx_not_for_us"] += 1
                     continue
-                self.emit_frame(RxFrame(f.src, f.dst, f.payload, time.time(), meta={"size": len(ev.raw)}))
+                meta: dict[str, Any] = {"size": len(ev.raw)}
+                if f.seq is not None:                    # a SimplePacket's own seq: the sender app's
+                    meta["aseq"] = f.seq
+                self.emit_frame(RxFrame(f.src, f.dst, f.payload, time.time(), meta=meta))
             elif isinstance(ev, ds.Garbage):
                 self.emit_event("protocol-error", f"garbage: {len(ev.data)} bytes outside any frame", ev.data)
             else:

@@ -15,6 +15,7 @@ from typing import Any
 from ...formats import dccomms as fr
 from ...formats import dccomms_stream as ds
 from .._aio import FdStream, LoopThread
+from ..app_seq import AppSeq
 from ..backend import BackendFrame, ModemBackend, detach
 from .driver import set_raw
 
@@ -113,7 +114,8 @@ class SerialRadioEmulator:
                 if self.framing.addressed and f.src != self.backend.address:
                     self.counters["src_mismatch"] += 1
                 self.counters["tx"] += 1
-                self.backend.send(f.dst, f.payload)
+                self.backend.send(f.dst, f.payload,       # a SimplePacket's seq is the sending app's
+                                  msg=None if f.seq is None else AppSeq(f.seq))  # type: ignore[arg-type]
             else:
                 self.counters[type(ev).__name__] += 1
                 if isinstance(ev, ds.Garbage):       # line noise, notifications: routine on a serial line
