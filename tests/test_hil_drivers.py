@@ -117,48 +117,21 @@ def test_serial_driver_serves_a_modem_id(tmp_path: Path):
 
 
 # -- the driver port: a driver and an emulator from a separately installed package (entry points) -------------
-PLUGIN = '''"""acme_modems: a vendor's S2C-compatible modem, shipped as its own package (a uwsimnet driver plug-in)."""
-from uwsimnet_zenoh.drivers.registry import DriverPlugin, EmulatorPlugin
+def _doc_blocks() -> tuple[str, str]:
+    """The plug-in and its pyproject entry points, as docs/drivers.md shows them (the doc's code is what runs)."""
+    import re
+    import tomllib
 
-
-def _driver_args(p):
-    p.add_argument("--modem", required=True, metavar="HOST:PORT")
-
-
-def _open(args, ctx):
-    from uwsimnet_zenoh.drivers.evologics.driver import EvoLogicsDriver
-
-    host, _, port = args.modem.rpartition(":")
-    return EvoLogicsDriver(host, int(port), ctx.id, mode="im")
-
-
-def _emulator_args(p):
-    p.add_argument("--tcp", type=int, required=True, metavar="PORT")
-
-
-def _start(args, backend):
-    from uwsimnet_zenoh.drivers.evologics.emulator import EvoLogicsEmulator
-
-    emu = EvoLogicsEmulator(backend, "127.0.0.1", args.tcp)
-    host, port = emu.start()
-    return emu, f"acme {host}:{port}"
-
-
-def helper():
-    return 42
-
-
-DRIVER = DriverPlugin("ACME S2C-compatible modem (instant messages only)", _driver_args, _open)
-EMULATOR = EmulatorPlugin("ACME modem emulator", _emulator_args, _start)
-'''
-ENTRY_POINTS = """[uwsimnet.drivers]
-acme = acme_modems:DRIVER
-broken = acme_modems:MISSING
-notaplugin = acme_modems:helper
-
-[uwsimnet.emulators]
-acme = acme_modems:EMULATOR
-"""
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "drivers.md").read_text()
+    part = doc[doc.index("## The driver port"):]
+    code = re.search(r"```python\n(.*?)```", part, re.S).group(1)
+    toml = tomllib.loads(re.search(r"```toml\n(.*?)```", part, re.S).group(1))
+    eps = toml["project"]["entry-points"]
+    lines = []
+    for group, extra in (("uwsimnet.drivers", {"broken": "acme_modems:MISSING", "notaplugin": "acme_modems:_args"}),
+                         ("uwsimnet.emulators", {})):
+        lines += [f"[{group}]", *(f"{k} = {v}" for k, v in {**eps[group], **extra}.items()), ""]
+    return code, "\n".join(lines)
 
 
 @pytest.fixture
@@ -166,11 +139,12 @@ def installed_plugin(tmp_path: Path, monkeypatch):
     """acme_modems installed as a package of its own (its code and its dist-info on the path), as pip would."""
     site = tmp_path / "site"
     (site / "acme_modems").mkdir(parents=True)
-    (site / "acme_modems" / "__init__.py").write_text(PLUGIN)
+    code, entry_points = _doc_blocks()
+    (site / "acme_modems" / "__init__.py").write_text(code)
     info = site / "acme_modems-1.0.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: acme-modems\nVersion: 1.0\n")
-    (info / "entry_points.txt").write_text(ENTRY_POINTS)
+    (info / "entry_points.txt").write_text(entry_points)
     import os
 
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(site), os.environ.get("PYTHONPATH")) if p))
@@ -192,7 +166,7 @@ def test_a_driver_and_an_emulator_plugin_serve_through_the_channel(installed_plu
         emu = Proc([*UWSIMNET, "emulate", "acme", "--tcp", str(port), "--id", "a-m", "--world", WORLD,
                     "--connect", broker.endpoint])
         started.append(emu)
-        emu.expect(f"uwsimnet: emulator acme ready for {WORLD}/a-m on acme 127.0.0.1:{port}", 20)
+        emu.expect(f"uwsimnet: emulator acme ready for {WORLD}/a-m on 127.0.0.1:{port}", 20)
         drv = Proc([*UWSIMNET, "driver", "acme", "--modem", f"127.0.0.1:{port}", "--id", "b-m",
                     "--connect", broker.endpoint])
         started.append(drv)
@@ -213,7 +187,7 @@ def test_a_driver_and_an_emulator_plugin_serve_through_the_channel(installed_plu
 @pytest.mark.parametrize("argv,line", [
     (["driver", "broken", "--id", "x"], "driver plug-in 'broken' (acme_modems:MISSING) does not load: AttributeError"),
     (["driver", "notaplugin", "--id", "x"],
-     "driver plug-in 'notaplugin' (acme_modems:helper) is a function, not a"
+     "driver plug-in 'notaplugin' (acme_modems:_args) is a function, not a"
      " uwsimnet_zenoh.drivers.registry.DriverPlugin"),
     (["emulate", "nosuch", "--id", "x"], "unknown emulator 'nosuch' (known: evologics, serial, acme;"),
     (["driver", "nosuch", "--id", "x"], "unknown driver 'nosuch' (known: evologics, serial, acme, broken, notaplugin;"),
