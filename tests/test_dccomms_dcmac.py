@@ -101,3 +101,33 @@ def test_a_scene_with_dcmac_framing_loads_and_counts_its_size_on_air(tmp_path):
     s = load_scene(str(xml))
     dev = s.vehicles[0].devices[0]
     assert dev.tx_framing == "DcMacPacketBuilder" and dev.max_frame_bytes == 2056
+
+
+def test_against_packets_the_real_dcmac_code_built():
+    """tests/data/dcmac_vectors.json: buffers DcMacPacket itself built (the original's code compiled, see the
+    file's `source`).  Bits 3 and 7 of its flags byte are uninitialised there (DcMac never writes them): the
+    parser ignores them as DcMac does and the CRC covers them; our encoder writes 0 there."""
+    import json
+    from pathlib import Path
+
+    data = json.loads((Path(__file__).parent / "data" / "dcmac_vectors.json").read_text())
+    want = {"data 1->2 hello": ("data", 1, 2, b"hello", None),
+            "data 3->4 1500 bytes i*7": ("data", 3, 4, bytes(i * 7 & 0xFF for i in range(1500)), None),
+            "data 0->15 empty": ("data", 0, 15, b"", None),
+            "rts 1->0 size 301 ack 5": ("rts", 1, 0, b"", {"rts_size": 302, "slave_ack_mask": 5}),
+            "cts 0->2 size 4094": ("cts", 0, 2, b"", {"rts_size": 4094, "slave_ack_mask": 0}),
+            "sync mask 0x0a": ("sync", 0, 0, b"", {"master_ack_mask": 0x0A})}
+    assert sorted(v["name"] for v in data["vectors"]) == sorted(want)
+    for v in data["vectors"]:
+        raw = bytes.fromhex(v["hex"])
+        p = DCMAC.parse(raw + bytes(20))
+        kind, src, dst, payload, fields = want[v["name"]]
+        assert v["ok"] and (p.kind, p.src, p.dst, p.payload, p.size) == (kind, src, dst, payload, v["size"]), v["name"]
+        if fields is not None:
+            assert p.fields == fields
+        # ours, with the flags' two loose bits as the original left them, is the original's byte for byte
+        ours = bytearray(DCMAC.encode(payload, dst=dst, src=src) if kind == "data" else
+                         DCMAC.control(kind, dst=dst, src=src, **(fields or {})))
+        ours[2] |= raw[2] & 0x88
+        ours[-2:] = binascii.crc_hqx(bytes(ours[1:-2]), 0).to_bytes(2, "big")
+        assert bytes(ours) == raw, v["name"]
