@@ -70,7 +70,8 @@ def test_driver_to_emulator_through_the_simulated_channel(parts):
     assert broker.p.poll() is None and emu.p.poll() is None and drv.p.poll() is None
 
 
-def test_serial_driver_serves_a_modem_id(tmp_path: Path):
+@pytest.mark.parametrize("framing", [None, "SimplePacketBuilder20crc16"])
+def test_serial_driver_serves_a_modem_id(tmp_path: Path, framing):
     """`uwsimnet driver serial` on a pty whose other end is a serial-radio emulator of another (in-process)
     simulation: frames put on b-m's keys go out on that radio link, and what it receives comes back."""
     from conftest import device, scene, vehicle
@@ -82,7 +83,7 @@ def test_serial_driver_serves_a_modem_id(tmp_path: Path):
     radio = SimWorld(scene([vehicle("a", (0, 0, 0), device("radio-a", 1, bitrate=9600)),
                             vehicle("b", (30, 0, 0), device("radio-b", 2, bitrate=9600))],
                            channels=[Channel(id=0, prop_s_per_m=3.333e-9, min_prop_s=0.0)]))
-    emu = SerialRadioEmulator(radio.backend("radio-b"))
+    emu = SerialRadioEmulator(radio.backend("radio-b"), framing=framing)
     got: list = []
     radio.backend("radio-a").on_frame.append(got.append)
     sc = tmp_path / "s.xml"
@@ -95,7 +96,7 @@ def test_serial_driver_serves_a_modem_id(tmp_path: Path):
         broker = Broker(sc, tmp_path / "trace.jsonl")
         started.append(broker)
         drv = Proc([*UWSIMNET, "driver", "serial", "--device", emu.path, "--id", "b-m", "--world", WORLD,
-                    "--connect", broker.endpoint])
+                    "--connect", broker.endpoint, *(["--framing", framing] if framing else [])])
         started.append(drv)
         drv.expect("uwsimnet: driver serial ready", 20)
         with World(WORLD, connect=broker.endpoint) as w:
@@ -105,10 +106,18 @@ def test_serial_driver_serves_a_modem_id(tmp_path: Path):
             deadline = time.monotonic() + 10
             while not got and time.monotonic() < deadline:
                 time.sleep(0.02)
-            assert got and (got[0].src, got[0].dst, got[0].data) == (2, 1, b"over the radio")
-            radio.backend("radio-a").send(2, b"radio reply")
-            f = b.receive(timeout=10)
-            assert f is not None and (f.src, f.dst, f.data) == (1, 2, b"radio reply")
+            if framing is None:              # DataLinkFrame: addressed
+                assert got and (got[0].src, got[0].dst, got[0].data) == (2, 1, b"over the radio")
+                radio.backend("radio-a").send(2, b"radio reply")
+                f = b.receive(timeout=10)
+                assert f is not None and (f.src, f.dst, f.data) == (1, 2, b"radio reply")
+                assert f.msg is None
+            else:                            # SimplePacket: no addresses, 20 bytes, its seq the first two
+                assert got and got[0].data == b"over the radio".ljust(20, b"\0")
+                radio.backend("radio-a").send(2, b"\x01\x02radio reply")
+                f = b.receive(timeout=10)
+                assert f is not None and f.data == b"\x01\x02radio reply".ljust(20, b"\0")
+                assert f.msg == {"aseq": 0x0102}         # the frame's own seq, as the sending app's
     finally:
         errors = stop_all(started)
         emu.close()
