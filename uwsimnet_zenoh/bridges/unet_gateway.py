@@ -20,7 +20,7 @@ import contextlib
 import logging
 import math
 import threading
-from collections import Counter
+from collections import Counter, deque
 from typing import Any
 
 import zenoh
@@ -38,6 +38,10 @@ UNET_BROADCAST = 0
 DATAGRAM_BIT, CONTROL_BIT, PROTOCOL_MASK = 0x40, 0x80, 0x3F
 HEADER_BYTES = 1
 CONTROL, DATA = 1, 2                    # UnetStack frame types (Physical.CONTROL, Physical.DATA)
+REPLY_DELAY_S = 0.01
+"""Answers to requests leave this long after the request: fjagepy 2.2.0 registers the waiter of a reply
+only after sending the request (Gateway._msg_tx_rx, Gateway.request), so an answer that comes back
+before that is lost (a KeyError or a timeout in the application).  Later writes queue behind it."""
 MAX_BACKLOG = 1 << 20
 """Bytes waiting for a client that does not read; past it the client is closed (one log line)."""
 
@@ -214,22 +218,34 @@ class UnetGateway:
         self.publish("#phy__ntf", fj.send(clazz, fields))
 
     def _status(self, st: Status) -> None:
+        """TxFrameNtf at the end of transmission; with `reliability` true, DatagramDeliveryNtf once the
+        addressee acknowledged (a MAC or modem with ACKs), else DatagramFailureNtf; a frame the modem
+        dropped ends with DatagramFailureNtf.  One notification per request."""
         route = self._pending.get(st.tag) if st.tag is not None else None
         if route is None:
             return
         client, req, frame = route
         final = st.event in ("sent", "acked", "failed", "dropped")
-        if st.event in ("sent", "transmitted", "acked") and st.tag not in self._notified:
-            self._notified.add(st.tag)
-            fields = {"txTime": _us(st.t), "type": req.get("type") if frame else DATA}
-            if frame:
-                fields.update({"to": req.get("to"), "protocol": req.get("protocol", 0)})
-            client.write(fj.reply(req, "org.arl.unet.phy.TxFrameNtf", "INFORM", "phy", **fields))
-            self.counters["tx_ntf"] += 1
-        elif st.event in ("failed", "dropped") and st.tag not in self._notified:
-            client.write(fj.reply(req, "org.arl.unet.DatagramFailureNtf", "FAILURE", "phy",
-                                  reason=st.reason or st.event, to=req.get("to")))
-            self.counters[f"tx_{st.event}"] += 1
+        if st.tag not in self._notified:
+            ntf: bytes | None = None
+            if req["reliable"] and st.event == "acked":
+                ntf = fj.reply(req, "org.arl.unet.DatagramDeliveryNtf", "INFORM", "phy", to=req["to"])
+            elif req["reliable"] and final:
+                why = "noack: nothing acknowledges frames on this modem" if st.event == "sent" else \
+                    st.reason or st.event
+                ntf = fj.reply(req, "org.arl.unet.DatagramFailureNtf", "FAILURE", "phy", reason=why, to=req["to"])
+            elif not req["reliable"] and st.event in ("sent", "transmitted", "acked"):
+                fields = {"txTime": _us(st.t), "type": req["type"] if frame else DATA}
+                if frame:
+                    fields.update({"to": req["to"], "protocol": req["protocol"]})
+                ntf = fj.reply(req, "org.arl.unet.phy.TxFrameNtf", "INFORM", "phy", **fields)
+            elif st.event in ("failed", "dropped"):
+                ntf = fj.reply(req, "org.arl.unet.DatagramFailureNtf", "FAILURE", "phy",
+                               reason=st.reason or st.event, to=req["to"])
+            if ntf is not None:
+                self._notified.add(st.tag)
+                self.counters[f"ntf_{st.event}"] += 1
+                client.write(ntf)
         if final:
             self._pending.pop(st.tag, None)
             self._notified.discard(st.tag)
@@ -252,24 +268,24 @@ class UnetGateway:
             return None
         svc = obj.get("service")
         if act == "agents":
-            c.write(fj.response(obj, agentIDs=list(AGENTS), agentTypes=[TYPES[a] for a in AGENTS]))
+            c.answer(fj.response(obj, agentIDs=list(AGENTS), agentTypes=[TYPES[a] for a in AGENTS]))
         elif act == "services":
-            c.write(fj.response(obj, services=sorted({s for v in AGENTS.values() for s in v})))
+            c.answer(fj.response(obj, services=sorted({s for v in AGENTS.values() for s in v})))
         elif act == "agentForService":
             found = [a for a, v in AGENTS.items() if svc in v]
-            c.write(fj.response(obj, **({"agentID": found[0]} if found else {})))
+            c.answer(fj.response(obj, **({"agentID": found[0]} if found else {})))
         elif act == "agentsForService":
-            c.write(fj.response(obj, agentIDs=[a for a, v in AGENTS.items() if svc in v]))
+            c.answer(fj.response(obj, agentIDs=[a for a, v in AGENTS.items() if svc in v]))
         elif act == "containsAgent":
-            c.write(fj.response(obj, answer=str(obj.get("agentID")) in AGENTS))
+            c.answer(fj.response(obj, answer=str(obj.get("agentID")) in AGENTS))
         elif act == "auth":
-            c.write(fj.response(obj, auth=True))
+            c.answer(fj.response(obj, auth=True))
         elif act == "shutdown":
             log.warning("%s: a client asked to shut the node down; ignored (stop the bridge instead)", self.id)
         else:
             self.counters["bad_action"] += 1
             log.warning("%s: unknown action %r from %s; answered empty", self.id, act, c.peer)
-            c.write(fj.response(obj))
+            c.answer(fj.response(obj))
         return None
 
     def message(self, c: _Client, clazz: str, m: dict[str, Any]) -> None:
@@ -280,17 +296,17 @@ class UnetGateway:
         if to not in AGENTS:
             self.counters["no_agent"] += 1
             log.warning("%s: %s for agent %r, which this node does not have; refused", self.id, name, to)
-            c.write(fj.reply(m, "org.arl.unet.RefuseRsp", "REFUSE", to or "node",
+            c.answer(fj.reply(m, "org.arl.unet.RefuseRsp", "REFUSE", to or "node",
                              reason=f"no agent {to!r} on this node (agents: {', '.join(AGENTS)})"))
             return
         if name == "ParameterReq":
-            c.write(self.parameters(to, m))
+            c.answer(self.parameters(to, m))
         elif to == "arp" and name == "AddressResolutionReq":
             addr = self.names.get(str(m.get("name")))
             if addr is None:
-                c.write(fj.reply(m, "org.arl.unet.RefuseRsp", "REFUSE", to, reason=f"unknown host {m.get('name')!r}"))
+                c.answer(fj.reply(m, "org.arl.unet.RefuseRsp", "REFUSE", to, reason=f"unknown host {m.get('name')!r}"))
             else:
-                c.write(fj.reply(m, "org.arl.unet.addr.AddressResolutionRsp", "INFORM", to, name=m.get("name"),
+                c.answer(fj.reply(m, "org.arl.unet.addr.AddressResolutionRsp", "INFORM", to, name=m.get("name"),
                                  address=addr))
         elif to == "phy" and name in ("DatagramReq", "TxFrameReq"):
             self.transmit(c, m, frame=name == "TxFrameReq")
@@ -298,12 +314,12 @@ class UnetGateway:
             self.counters["not_understood"] += 1
             log.warning("%s: %s (%s) to %s is not understood here; answered NOT_UNDERSTOOD", self.id, name,
                         m.get("perf"), to)
-            c.write(fj.reply(m, "org.arl.fjage.Message", "NOT_UNDERSTOOD", to))
+            c.answer(fj.reply(m, "org.arl.fjage.Message", "NOT_UNDERSTOOD", to))
 
     def transmit(self, c: _Client, m: dict[str, Any], *, frame: bool) -> None:
         def refuse(why: str) -> None:
             self.counters["tx_refused"] += 1
-            c.write(fj.reply(m, "org.arl.unet.RefuseRsp", "REFUSE", "phy", reason=why))
+            c.answer(fj.reply(m, "org.arl.unet.RefuseRsp", "REFUSE", "phy", reason=why))
         try:
             data = fj.read_bytes(m.get("data"))
         except ValueError as e:
@@ -321,8 +337,9 @@ class UnetGateway:
             return refuse("nobody serves the modem now")
         dst = BROADCAST if to == UNET_BROADCAST else to
         h = header(protocol, datagram=not frame, control=frame and ftype == CONTROL)
-        req = {"msgID": m.get("msgID"), "sender": m.get("sender"), "to": to, "protocol": protocol, "type": ftype}
-        c.write(fj.reply(m, "org.arl.fjage.Message", "AGREE", "phy"))
+        req = {"msgID": m.get("msgID"), "sender": m.get("sender"), "to": to, "protocol": protocol, "type": ftype,
+               "reliable": m.get("reliability") is True}
+        c.answer(fj.reply(m, "org.arl.fjage.Message", "AGREE", "phy"))
         tag = self.modem.send(dst, bytes([h]) + data)
         self._pending[tag] = (c, req, frame)
         while len(self._pending) > 100000:
@@ -386,6 +403,7 @@ class _Client(ServerClient):
         self.wants: set[str] | None = None
         self.peer = "?"
         self.gone = False
+        self._held: deque[tuple[float, bytes]] = deque()
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         if self.accept(transport, self.gw.closing):
@@ -417,7 +435,32 @@ class _Client(ServerClient):
         self.gw.counters["bad_message"] += 1
         log.warning("%s: client %s sent %s; skipped", self.gw.id, self.peer, why)
 
-    def write(self, data: bytes) -> None:
+    def answer(self, data: bytes) -> None:
+        """A reply to a request: after REPLY_DELAY_S."""
+        self.write(data, REPLY_DELAY_S)
+
+    def write(self, data: bytes, delay: float = 0.0) -> None:
+        """In order: what comes after a delayed answer waits for it."""
+        if delay <= 0 and not self._held:
+            self._put(data)
+            return
+        loop = self.gw._io.loop
+        t = loop.time() + delay
+        if self._held:
+            t = max(t, self._held[-1][0])
+        self._held.append((t, data))
+        if len(self._held) == 1:
+            loop.call_at(t, self._flush)
+
+    def _flush(self) -> None:
+        loop = self.gw._io.loop
+        now = loop.time()
+        while self._held and self._held[0][0] <= now:
+            self._put(self._held.popleft()[1])
+        if self._held:
+            loop.call_at(self._held[0][0], self._flush)
+
+    def _put(self, data: bytes) -> None:
         t = self.transport
         if t is None or t.is_closing():
             return
