@@ -6,6 +6,7 @@ a running broker (docs/drivers.md, docs/bridges.md).
     uwsimnet emulate evologics --port P --id X [--world W] [--connect E]         # AT server for simulated X
     uwsimnet emulate serial --id X [--link PATH] [--world W] [--connect E]       # dccomms-framed pty for X
     uwsimnet bridge socket --port P --id X ...  /  uwsimnet bridge mq --id X ...
+    uwsimnet bridge unet --id X [--id Y ...] [--port P]                          # UnetStack nodes (fjåge JSON)
 
 Each prints one `uwsimnet: ... ready` line on stdout once it serves, and runs until SIGINT/SIGTERM.
 """
@@ -102,6 +103,13 @@ def add_commands(sub: Any) -> None:
                          " rxPacketBuilder, else --framing)")
     common(bm)
     bm.set_defaults(fn=cmd_bridge)
+    bu = bsub.add_parser("unet", help="a UnetStack node (fjåge JSON over TCP) per modem, docs/unetstack.md")
+    bu.add_argument("--id", action="append", required=True, help="a modem's dccommsId (repeat: one node each)")
+    bu.add_argument("--port", type=int, default=0, help="TCP port of the first node, the next ones follow"
+                    " (0: free ones, printed)")
+    bu.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    add_zenoh_flags(bu, world=WORLD_HELP)
+    bu.set_defaults(fn=cmd_bridge_unet)
 
     k = sub.add_parser("vehicles", help="kinematic vehicles: poses on pose/<name>, commands on vehicle/<name>/cmd")
     k.add_argument("--vehicle", action="append", required=True, metavar="NAME=X,Y,Z",
@@ -241,6 +249,34 @@ def cmd_bridge(args: argparse.Namespace) -> int:
             f" (rx {br.rx_framing.name})" if br.rx_framing.name != br.framing.name else "")
 
     return _serve(args, f"bridge {args.bridge}", start)
+
+
+def cmd_bridge_unet(args: argparse.Namespace) -> int:
+    from uwsimnet_gli import World
+
+    from ..bridges.unet_gateway import UnetGateway
+
+    _log()
+    ids = tuple(dict.fromkeys(args.id))
+    _precheck(args, "modem", ids)
+    with _session(args) as s:
+        world = _world(s, args)
+        check_access(args, "modem", world, ids)
+        with World(world, session=s) as w, contextlib.ExitStack() as stack:
+            for i, dev in enumerate(ids):
+                port = args.port + i if args.port else 0
+                gw = UnetGateway(w, dev, args.host, port)
+                stack.callback(gw.close)
+                try:
+                    gw.start()
+                except OSError as e:
+                    raise _listen_error("bridge unet", args.host, port, e) from None
+                except RuntimeError as e:
+                    raise UserError(str(e)) from None
+                print(f"uwsimnet: bridge unet ready for {world}/{dev} on tcp {args.host}:{gw.port}"
+                      f" address {gw.address}", flush=True)
+            _wait_for_signal()
+    return 0
 
 
 def cmd_vehicles(args: argparse.Namespace) -> int:

@@ -1,0 +1,237 @@
+"""`uwsimnet bridge unet`: the `unetpy` package from PyPI, unmodified, against UnetStack nodes served by the
+gateway in front of simulated modems (`uwsimnet run --clock realtime`, every part its own process, real
+TCP and Zenoh over loopback); and the same tests with node B's modem swapped for a real driver whose
+hardware is the EvoLogics emulator (`uwsimnet emulate evologics` + `uwsimnet driver evologics`).
+
+Scene: A (232) at the origin, B (31) 300 m east, C (7) 400 m north, D (9) 1000 m east; packets travel
+0.6667 ms/m at 10 kbit/s, intrinsic tx delay 1 ms; beyond 610 m every packet is lost (the error model),
+so D hears nothing.  B's second device b-hw (also 31, on a channel of its own) is the id the real driver
+serves in the HIL case; its hardware is the emulated b-m.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+
+import pytest
+
+unetpy = pytest.importorskip("unetpy", reason="unetpy is in the dev extra (pip install unetpy)")
+from test_broker_e2e import UWSIMNET, WALL_SLACK, Broker, Proc, device_xml, free_port, scene_xml, stop_all  # noqa: E402
+from unetpy import DatagramNtf, Protocol, RxFrameNtf, Services, TxFrameNtf, TxFrameReq, UnetSocket  # noqa: E402
+
+from uwsimnet_zenoh.drivers.emulators import im_duration_us  # noqa: E402
+from uwsimnet_zenoh.drivers.evologics_at.events import IM_MAX  # noqa: E402
+
+WORLD = "unetgw"
+PROP, BITRATE, INTRINSIC_TX = 0.6667e-3, 10_000.0, 0.001
+NODES = {  # name: (device, address, position)
+    "A": ("a-m", 232, (0.0, 0.0, 0.0)),
+    "B": ("b-m", 31, (300.0, 0.0, 0.0)),
+    "C": ("c-m", 7, (0.0, 400.0, 0.0)),
+    "D": ("d-m", 9, (1000.0, 0.0, 0.0)),
+}
+
+
+def _scene() -> str:
+    vehicles = []
+    for name, (dev, addr, p) in NODES.items():
+        devs = device_xml(dev, addr)
+        if name == "B":
+            devs += device_xml("b-hw", addr, ch=1)
+        vehicles.append(f"<vehicle><name>{name}</name><position>{p[0]} {p[1]} {p[2]}</position>{devs}</vehicle>")
+    return scene_xml(world=WORLD, vehicles="".join(vehicles), channels=(0, 1))
+
+
+def modelled_delay(nbytes: int, src: str, dst: str) -> tuple[float, float]:
+    """(first bit out -> delivery, request -> delivery) in s: docs/phy-model.md with jitter 0, no queueing;
+    one header byte of the gateway on air."""
+    d = sum((a - b) ** 2 for a, b in zip(NODES[src][2], NODES[dst][2], strict=True)) ** 0.5
+    air = d * PROP + 8 * (nbytes + 1) / BITRATE
+    return air, INTRINSIC_TX + air
+
+
+@pytest.fixture(scope="module", params=["sim", "hil"])
+def net(request, tmp_path_factory):
+    """The broker and one gateway per node; `ports` by node name.  hil: B's gateway serves b-hw, whose real
+    driver talks AT to the emulator of b-m."""
+    d = tmp_path_factory.mktemp(f"unet-{request.param}")
+    scene = d / "unet.xml"
+    scene.write_text(_scene())
+    started: list[Proc] = []
+    try:
+        broker = Broker(scene, d / "trace.jsonl")
+        started.append(broker)
+        ids = {n: dev for n, (dev, _, _) in NODES.items()}
+        if request.param == "hil":
+            port = free_port()
+            emu = Proc([*UWSIMNET, "emulate", "evologics", "--port", str(port), "--id", "b-m", "--world", WORLD,
+                        "--connect", broker.endpoint])
+            started.append(emu)
+            emu.expect("uwsimnet: emulator evologics ready", 20)
+            drv = Proc([*UWSIMNET, "driver", "evologics", "--host", "127.0.0.1", "--port", str(port), "--id",
+                        "b-hw", "--world", WORLD, "--connect", broker.endpoint])
+            started.append(drv)
+            drv.expect("uwsimnet: driver evologics ready", 20)
+            ids["B"] = "b-hw"
+        gw = Proc([*UWSIMNET, "bridge", "unet", *[a for dev in ids.values() for a in ("--id", dev)],
+                   "--world", WORLD, "--connect", broker.endpoint])
+        started.append(gw)
+        ports = {}
+        for name, dev in ids.items():
+            line = gw.expect(f"uwsimnet: bridge unet ready for {WORLD}/{dev} ", 30)
+            ports[name] = int(line.split("tcp 127.0.0.1:")[1].split()[0])
+        yield {"kind": request.param, "ports": ports, "gw": gw, "broker": broker,
+               "rx_latency": lambda name, n: _hardware_rx_latency(request.param, name, n)}
+    finally:
+        errors = stop_all(started)
+        assert not errors, errors
+
+
+def _hardware_rx_latency(kind: str, name: str, nbytes: int) -> float:
+    """What the receiving modem adds (s): an EvoLogics modem reports an instant message (<= 64 bytes) once
+    demodulated, its IM time after the frame arrived (the emulator does it as the modem does)."""
+    if kind == "hil" and name == "B" and nbytes <= IM_MAX:
+        return im_duration_us(nbytes) / 1e6
+    return 0.0
+
+
+def sock(net, name: str, timeout_ms: int = 5000) -> UnetSocket:
+    s = UnetSocket("127.0.0.1", net["ports"][name])
+    s.setTimeout(timeout_ms)
+    return s
+
+
+def payload(ntf) -> bytes:
+    """fjåge sends byte[] as base64 [B: readers get Java's signed bytes."""
+    return bytes(x & 0xFF for x in ntf.data)
+
+
+def test_sockets_see_the_scene(net):
+    with sock(net, "A") as a, sock(net, "B") as b:
+        assert a.getLocalAddress() == 232 and b.getLocalAddress() == 31
+        for s, name in ((a, "A"), (b, "B")):
+            node = s.agentForService(Services.NODE_INFO)
+            assert node is not None and node.name == "node"
+            assert node.location == list(NODES[name][2]) and node.nodeName == name and node.address == NODES[name][1]
+        assert a.host("B") == 31 and b.host("A") == 232 and a.host("c-m") == 7
+        gw = a.getGateway()
+        assert [x.name for x in gw.agentsForService(Services.DATAGRAM)] == ["phy"]
+        assert gw.agentForService(Services.ROUTING) is None
+        assert gw.containsAgent(gw.agent("phy")) and not gw.containsAgent(gw.agent("uwlink"))
+        phy = a.agentForService(Services.PHYSICAL)
+        assert phy.MTU == 2047 and phy[2].dataRate == BITRATE and phy[1].dataRate == BITRATE
+        assert phy.noSuchParameter is None
+
+
+def test_datagram_arrives_after_the_modelled_delay(net):
+    with sock(net, "A") as a, sock(net, "B") as b:
+        b.bind(Protocol.USER)
+        a.bind(Protocol.USER)
+        for s in (a, b):       # what a first send() looks up (5 directory queries), looked up beforehand
+            s.setServiceProvider(s.agentForService(Services.PHYSICAL))
+        for src, dst, data in ((a, b, b"hello B \x00\xff"), (b, a, bytes(range(40)))):
+            sname, dname = ("A", "B") if src is a else ("B", "A")
+            t0 = time.time()
+            assert src.send(data, to=NODES[dname][1], protocol=Protocol.USER)
+            ntf = dst.receive()
+            wall = time.time() - t0
+            assert isinstance(ntf, DatagramNtf), ntf
+            assert payload(ntf) == data and ntf.from_ == NODES[sname][1] and ntf.to == NODES[dname][1]
+            assert ntf.protocol == Protocol.USER
+            air, total = modelled_delay(len(data), sname, dname)
+            total += net["rx_latency"](dname, len(data) + 1)
+            assert total - 0.001 <= wall <= total + WALL_SLACK, (wall, total)
+            if dname == "A":      # a simulated receiver: the simulation's own times of the frame
+                assert abs((ntf.rxTime - ntf.txTime) / 1e6 - air) < 0.005, (ntf.rxTime - ntf.txTime, air)
+
+
+def test_broadcast_reaches_every_socket_in_range(net):
+    with sock(net, "A") as a, sock(net, "B") as b, sock(net, "C") as c, sock(net, "D", 1500) as d:
+        for s in (b, c, d):
+            s.bind(Protocol.USER)
+        a.setSendMode(UnetSocket.BLOCKING)                 # waits for TxFrameNtf: the last bit left
+        assert a.send(b"to all", to=0, protocol=Protocol.USER)
+        for s in (b, c):
+            ntf = s.receive()
+            assert isinstance(ntf, DatagramNtf) and payload(ntf) == b"to all" and ntf.from_ == 232 and ntf.to == 0
+        assert d.receive() is None                         # 1000 m: the error model loses every packet
+
+
+def test_a_frame_lost_in_the_simulation_never_arrives(net):
+    with sock(net, "A") as a, sock(net, "D", 2000) as d:
+        d.bind(Protocol.USER)
+        a.setSendMode(UnetSocket.BLOCKING)
+        assert a.send(b"lost", to=9, protocol=Protocol.USER)      # transmitted: TxFrameNtf
+        assert d.receive() is None
+
+
+def test_physical_frames(net):
+    with sock(net, "A") as a, sock(net, "B") as b:
+        gw = b.getGateway()
+        gw.subscribe(gw.topic(b.agentForService(Services.PHYSICAL)))
+        phy = a.agentForService(Services.PHYSICAL)
+        req = TxFrameReq(to=31, type=1, protocol=0, data=[1, 2, 3])
+        rsp = phy << req
+        assert rsp is not None and rsp.perf.value == "AGREE"
+        ntf = a.getGateway().receive(lambda m: isinstance(m, TxFrameNtf), 5000)
+        assert ntf is not None and ntf.inReplyTo == req.msgID and ntf.type == 1
+        rx = gw.receive(lambda m: isinstance(m, RxFrameNtf), 5000)
+        assert rx is not None and payload(rx) == b"\x01\x02\x03" and rx.type == 1 and rx.from_ == 232
+        big = phy << TxFrameReq(to=31, data=[0] * 3000)
+        assert big is not None and big.perf.value == "REFUSE" and "MTU" in big.reason
+
+
+def _raw(port: int) -> socket.socket:
+    s = socket.create_connection(("127.0.0.1", port), timeout=10)
+    assert json.loads(s.makefile("rb").readline()) == {"alive": True}
+    return s
+
+
+def _answer(s: socket.socket, line: bytes) -> dict:
+    s.sendall(line + b"\n")
+    f = s.makefile("rb")
+    while True:
+        obj = json.loads(f.readline())
+        if obj.get("action") == "send" or "inResponseTo" in obj:
+            return obj
+
+
+def test_bad_clients_get_one_log_line_and_the_others_are_served(net):
+    gw = net["gw"]
+    port = net["ports"]["A"]
+    with _raw(port) as s:
+        s.sendall(b"{not json\n")
+        m = {"clazz": "org.example.Teleport", "data": {"msgID": "m1", "perf": "REQUEST", "recipient": "phy",
+                                                       "sender": "me"}}
+        got = _answer(s, json.dumps({"action": "send", "message": m}).encode())
+        assert got["message"]["data"]["perf"] == "NOT_UNDERSTOOD" and got["message"]["data"]["inReplyTo"] == "m1"
+        m["data"].update(recipient="uwlink", msgID="m2")
+        got = _answer(s, json.dumps({"action": "send", "message": m}).encode())
+        assert got["message"]["data"]["perf"] == "REFUSE" and got["message"]["data"]["inReplyTo"] == "m2"
+        got = _answer(s, b'{"id": "x1", "action": "teleport"}')
+        assert got == {"id": "x1", "inResponseTo": "teleport"}
+    # a client that never reads while it asks for much: its answers pile up until the gateway drops it
+    lazy = _raw(port)
+    lazy.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    req = json.dumps({"action": "send", "message": {"clazz": "org.arl.fjage.param.ParameterReq", "data": {
+        "msgID": "p", "perf": "REQUEST", "recipient": "phy", "sender": "lazy", "index": -1}}}).encode() + b"\n"
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and not any("does not read" in x for x in gw.err):
+            try:
+                lazy.sendall(req * 200)
+            except OSError:
+                break
+        with sock(net, "A") as a, sock(net, "B") as b:         # the others: served
+            b.bind(Protocol.USER)
+            assert a.send(b"still here", to=31, protocol=Protocol.USER)
+            ntf = b.receive()
+            assert ntf is not None and payload(ntf) == b"still here"
+    finally:
+        lazy.close()
+    for what, n in (("not JSON", 1), ("Teleport (REQUEST) to phy is not understood", 1),
+                    ("for agent 'uwlink'", 1), ("unknown action 'teleport'", 1), ("does not read", 1)):
+        assert sum(what in x for x in gw.err) == n, (what, gw.err[-20:])
+    assert net["broker"].p.poll() is None and gw.p.poll() is None
