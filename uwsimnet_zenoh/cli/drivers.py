@@ -255,6 +255,7 @@ def cmd_bridge_unet(args: argparse.Namespace) -> int:
     from uwsimnet_gli import World
 
     from ..bridges.unet_gateway import UnetGateway
+    from ..drivers._aio import listen_error
 
     _log()
     ids = tuple(dict.fromkeys(args.id))
@@ -270,7 +271,7 @@ def cmd_bridge_unet(args: argparse.Namespace) -> int:
                 try:
                     gw.start()
                 except OSError as e:
-                    raise _listen_error("bridge unet", args.host, port, e) from None
+                    raise listen_error("bridge unet", args.host, port, e) from None
                 except RuntimeError as e:
                     raise UserError(str(e)) from None
                 print(f"uwsimnet: bridge unet ready for {world}/{dev} on tcp {args.host}:{gw.port}"
