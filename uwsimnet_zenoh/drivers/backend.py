@@ -84,6 +84,8 @@ class BackendFrame:
     prop_time: float | None = None
     velocity: float | None = None
     msg: Message | None = None
+    aseq: int | None = None
+    """The sending application's own sequence number (the wire's `aseq`), None if it set none."""
 
 
 @dataclass(frozen=True)

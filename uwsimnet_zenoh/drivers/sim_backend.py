@@ -216,7 +216,7 @@ class SimBackend:
         data = frame.data if frame.data is not None else bytes(frame.payload)
         bf = BackendFrame(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, frame.size,
                           sender.bitrate if sender is not None else None, dist, prop, vel,
-                          Message.from_wire(frame.msg))
+                          Message.from_wire(frame.msg), (frame.msg or {}).get("aseq"))
         for cb in list(self.on_frame):
             try:
                 cb(bf)

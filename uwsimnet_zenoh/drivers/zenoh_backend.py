@@ -203,7 +203,7 @@ class ZenohBackend:
         # the broker's distance (older brokers: none, and link_metrics falls back to t_rx - t_tx)
         bf = BackendFrame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, size, self.bitrate,
                           f.dist, None if f.dist is None else self.prop_time(f.dist, rx=True),
-                          msg=Message.from_wire(f.msg))
+                          msg=Message.from_wire(f.msg), aseq=(f.msg or {}).get("aseq"))
         for cb in list(self.on_frame):
             try:
                 cb(bf)
