@@ -11,6 +11,7 @@ from .model import (
     Device,
     ErrorModel,
     MacSpec,
+    ModelSpec,
     Simulation,
     Tracing,
     Vehicle,
@@ -77,7 +78,8 @@ class LegacyVocabulary(XmlReader):
         return self.build(Simulation, el, f)
 
     def channel(self, el: _El) -> tuple[Channel, _El]:
-        k = self.kids(el, single=("id", "propTimeIncPerMeter", "minPropTime"), ignore=_CHANNEL_IGNORED)
+        k = self.kids(el, single=("id", "propTimeIncPerMeter", "minPropTime", "channelModel"),
+                      ignore=_CHANNEL_IGNORED)
         f = _Fields()
         id_el = self.need(k, "id")
         cid, raw = self.integer(id_el)
@@ -86,6 +88,8 @@ class LegacyVocabulary(XmlReader):
             if (e := k.get(tag)) is not None:
                 _, raw = self.number(e)
                 f.set(field, _ms_to_s(raw), tag, e, raw)
+        if (e := k.get("channelModel")) is not None:
+            f.set("model", self.channel_model(e), "channelModel", e)
         return self.build(Channel, el, f), id_el
 
     # --- vehicles ------------------------------------------------------------------------------------
@@ -324,3 +328,32 @@ class LegacyVocabulary(XmlReader):
         f.values["params"] = params
         return self.build(MacSpec, el, f)
 
+    def channel_model(self, el: _El) -> ModelSpec:
+        """`<channelModel>`: `<name>` and the model's parameters, one element each (docs/channel-models.md).
+        The name must resolve here; the parameters are the model's to check when it is built."""
+        from ..phy.registry import resolve as resolve_model
+
+        self._no_attributes(el)
+        name_el: _El | None = None
+        params: dict[str, str] = {}
+        seen: dict[str, _El] = {}
+        for child in self._nodes(el):
+            if child.tag in seen:
+                self.fail(child, f"duplicate <{child.tag}> in <channelModel> (first at line"
+                                 f" {seen[child.tag].sourceline})")
+            seen[child.tag] = child
+            if child.tag == "name":
+                name_el = child
+            else:
+                params[child.tag] = self.text(child)
+        if name_el is None or not self.text(name_el):
+            self.fail(el, "channelModel: missing <name>")
+        name = self.text(name_el)
+        try:
+            resolve_model(name)
+        except ValueError as e:
+            self.fail(name_el, f"channelModel/name: {e}")
+        f = _Fields()
+        f.set("name", name, "channelModel/name", name_el)
+        f.values["params"] = params
+        return self.build(ModelSpec, el, f)

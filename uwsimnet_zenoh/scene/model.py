@@ -42,6 +42,14 @@ class MacSpec(_Model):
     params: dict[str, str] = Field(default_factory=dict)
 
 
+class ModelSpec(_Model):
+    """`channelModel` of a channel: a channel model by name (built-in, entry point of group
+    `uwsimnet.channel_models`, or `module:Class`) with its parameters (docs/channel-models.md)."""
+
+    name: str
+    params: dict[str, str] = Field(default_factory=dict)
+
+
 # ---------------------------------------------------------------------------------------------------
 # Acoustic physics (AcousticCommsChannel / AcousticCommsDevice); docs/acoustic.md, docs/scene-format.md
 # Defined before the models holding them, so that every model is built once, by its class statement (no
@@ -164,6 +172,8 @@ class Channel(_Model):
     acoustic: AcousticChannelSpec | None = None
     """Set for an `AcousticCommsChannel`: its water, noise and interference rule.  Unless given explicitly,
     prop_s_per_m is then 1 / sound speed (Mackenzie or the fixed soundSpeed)."""
+    model: ModelSpec | None = None
+    """`<channelModel>`: the model every transmitter on this channel uses; None: each device's default."""
 
     @model_validator(mode="before")
     @classmethod
@@ -241,6 +251,11 @@ class Device(_Model):
     @property
     def half_duplex(self) -> bool:
         return self.tx_channel == self.rx_channel
+
+    @property
+    def default_model(self) -> str:
+        """The channel model the device uses where its channel names none (phy.registry)."""
+        return "expression" if self.acoustic is None else "acoustic"
 
 
 class Waypoint(_Model):
