@@ -156,8 +156,10 @@ def build_channel_model(device: Device, tx_spec: Channel, rx_spec: Channel, seed
     params = _ReadParams({} if spec is None else spec.params)
     try:
         model = cls.from_context(params, ctx)
-    except ValueError:
-        raise
+    except ValueError as e:
+        if spec is None:
+            raise
+        raise ValueError(f"channel model {name!r}: {e}") from None
     except Exception as e:  # noqa: BLE001 - a plug-in's constructor: one line, not a traceback
         raise ValueError(f"channel model {name!r} could not be built: {type(e).__name__}: {e}") from None
     if not isinstance(model, ChannelModel):

@@ -78,6 +78,7 @@ class AcousticVocabulary(XmlReader):
         f.set("acoustic", self.build(AcousticChannelSpec, el, a), "AcousticCommsChannel", el)
         if (e := k.get("channelModel")) is not None:
             f.set("model", self.channel_model(e), "channelModel", e)
+            self.modelled.add(cid)
         return self.build(Channel, el, f), id_el
 
     def acoustic_device(self, el: _El) -> tuple[Device, dict[str, _El]] | None:

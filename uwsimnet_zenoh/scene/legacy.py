@@ -90,6 +90,7 @@ class LegacyVocabulary(XmlReader):
                 f.set(field, _ms_to_s(raw), tag, e, raw)
         if (e := k.get("channelModel")) is not None:
             f.set("model", self.channel_model(e), "channelModel", e)
+            self.modelled.add(cid)
         return self.build(Channel, el, f), id_el
 
     # --- vehicles ------------------------------------------------------------------------------------
@@ -206,7 +207,7 @@ class LegacyVocabulary(XmlReader):
             self.fail(k.get("minDistance"), f"minDistance {f.where['min_distance'].raw} is larger than"
                                             f" maxDistance {f.where['max_distance'].raw}")
 
-        error = self.error_model(el, k)
+        error = self.error_model(el, k, f.values["tx_channel"] in self.modelled)
         if error is not None:
             f.set("error", error, "rateErrorModel", el)
         if (e := k.get("macProtocol")) is not None:
@@ -263,7 +264,9 @@ class LegacyVocabulary(XmlReader):
                 _, raw = self.number(e, f"{el.tag}/{tag}")
                 f.set(field, _ms_to_s(raw), f"{el.tag}/{tag}", e, raw)
 
-    def error_model(self, dev: _El, k: _Kids) -> ErrorModel | None:
+    def error_model(self, dev: _El, k: _Kids, modelled: bool = False) -> ErrorModel | None:
+        """The device's rateErrorModel (or its legacy form); none given: no loss, said in a warning unless
+        its channel names a `<channelModel>` (`modelled`), which the device's rate would not reach."""
         rem = k.get("rateErrorModel")
         legacy = [e for e in (k.get("minPktErrRatio"), k.get("pktErrRatioIncPerMeter")) if e is not None]
         if rem is not None and legacy:
@@ -291,7 +294,8 @@ class LegacyVocabulary(XmlReader):
             f = _Fields()
             f.values.update(unit="packet", expr=expr)
             return self.build(ErrorModel, legacy[0], f)
-        self.warn(dev, NO_ERROR_MODEL_WARNING)
+        if not modelled:
+            self.warn(dev, NO_ERROR_MODEL_WARNING)
         return None
 
     def check_expr(self, el: _El, expr: str) -> None:
