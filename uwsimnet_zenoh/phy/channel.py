@@ -306,11 +306,14 @@ class Channel:
             if not ok[j]:
                 self._unreachable(sender, frame, j, now, dist)
                 return
-            ans = sender.error.answer(Query(now, frame, dist[j:j + 1], (j,), self.poses, sender.vehicle_index,
-                                            self._veh))
-            per = float(ans.per[0])
-            if ans.delay is not None:
-                delay = self._retime(tx, (j,), ans.delay)
+            err = sender.error
+            if err.by_distance:
+                per = float(err.losses(dist[j:j + 1], frame.size)[0])
+            else:
+                ans = err.answer(Query(now, frame, dist[j:j + 1], (j,), self.poses, sender.vehicle_index, self._veh))
+                per = float(ans.per[0])
+                if ans.delay is not None:
+                    delay = self._retime(tx, (j,), ans.delay)
             end = float(delay[j]) + now + dur          # = (delay + now + dur)[j], the same double
             if sinr:
                 self.sched.at(end, self._end_sinr_at, tx, j, sender.loss_random(), per, True)
@@ -335,8 +338,13 @@ class Channel:
             reach = ok[targets]
             far = dist[targets]
         pers: Any = None
-        if any(reach):
-            ans = sender.error.answer(Query(now, frame, far, targets, self.poses, sender.vehicle_index, self._veh))
+        err = sender.error
+        if not any(reach):
+            pass
+        elif err.by_distance:
+            pers = err.losses(far, frame.size)
+        else:
+            ans = err.answer(Query(now, frame, far, targets, self.poses, sender.vehicle_index, self._veh))
             pers = ans.per
             if ans.delay is not None:
                 delay = self._retime(tx, targets, ans.delay)

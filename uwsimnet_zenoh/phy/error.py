@@ -31,9 +31,10 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Literal
 
-from .models import Answer, DistanceModel, Query
+from .models import DistanceModel
 
 if TYPE_CHECKING:
     import numpy as np
@@ -100,11 +101,11 @@ class RateErrorModel(DistanceModel):
 
     family = "expression"
 
-    def answer(self, q: Query) -> Answer:
+    def losses(self, distances: Sequence[float], size: int) -> Sequence[float]:
         """The channel's per-frame call; a lossless model answers without numpy (a small run never imports it)."""
         if self.lossless:
-            return Answer([0.0] * len(q.distances))
-        return Answer(self.per(q.distances, q.size))
+            return [0.0] * len(distances)
+        return self.per(distances, size)
 
     @property
     def expr(self) -> Expr:

@@ -138,6 +138,9 @@ class ChannelModel:
 
     __slots__ = ()
 
+    by_distance = False
+    """True if the loss depends on the distance and the frame size only: the channel then calls
+    `losses(distances, size)` and builds no `Query` (a `DistanceModel`; the built-ins' per-frame path)."""
     reports_power = False
     """True if the model gives `received_power`, `noise_power` and `per_from_sinr` (a SINR channel needs them)."""
     params_known: tuple[str, ...] = ()
@@ -191,11 +194,17 @@ class DistanceModel(ChannelModel):
         """A built-in named in `<channelModel>`: the build step makes it from the device (ctx.builtin)."""
         return ctx.builtin(cls.family)
 
+    by_distance = True
+
+    def losses(self, distances: Sequence[float], size: int) -> Sequence[float]:
+        """The loss probability at each distance for a frame of `size` bytes on air (default: `per`)."""
+        return self.per(distances, size)
+
     def answer(self, q: Query) -> Answer:
-        return Answer(self.per(q.distances, q.size))
+        return Answer(self.losses(q.distances, q.size))
 
     def link(self, tx: State, rx: State, distance: float, t: float, frame: Frame) -> Reception:
-        return Reception(float(self.per([distance], frame.size)[0]))
+        return Reception(float(self.losses([distance], frame.size)[0]))
 
 
 def _probability(p: float) -> float:

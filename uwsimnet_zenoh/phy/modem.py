@@ -50,6 +50,9 @@ class LossModel(Protocol):
     """What the channel asks a transmitter's channel model (phy.models.ChannelModel): one answer for all the
     receivers of a transmission."""
 
+    @property
+    def by_distance(self) -> bool: ...
+    def losses(self, distances: Any, size: int) -> Any: ...
     def answer(self, q: Any) -> Any: ...
 
 
