@@ -167,6 +167,20 @@ class ChannelModel:
             math.nan if r.level_db is None else float(r.level_db) for r in out]
         return Answer(per, delay, level)
 
+    # -- what a SINR channel also asks (reports_power = True; phy.acoustic's links have it) --------------
+    def received_power(self, distance_m: Any) -> Any:
+        """Received power (linear) at each distance: the interference a frame adds at every listener."""
+        raise NotImplementedError(f"{type(self).__name__} reports no received power")
+
+    @property
+    def noise_power(self) -> float:
+        """Noise power at a receiver, linear, in the unit of `received_power`."""
+        raise NotImplementedError(f"{type(self).__name__} reports no noise power")
+
+    def per_from_sinr(self, sinr_db: float, size_bytes: int) -> Any:
+        """PER of a frame received at `sinr_db` (interference treated as noise)."""
+        raise NotImplementedError(f"{type(self).__name__} gives no PER from SINR")
+
     def per(self, distance_m: Any, size_bytes: int) -> Any:
         """PER at each distance, on a straight horizontal line with both ends still at t = 0 (the view's
         curves): `link` with the sender at the origin."""
