@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from ..kernel.scheduler import Scheduler
     from ..phy.acoustic import AcousticChannelParams, AcousticLink, AcousticModemParams, FixedBerLink
     from ..phy.channel import Channel as PhyChannel
-    from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device, MacSpec
+    from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device, Environment, MacSpec
     from ..trace.tracer import Tracer
 
 __all__ = ["DEFAULT_CARRIER_KHZ", "DEFAULT_POWER_W", "BuildError", "FixedBerLink", "build_channel_model",
@@ -141,7 +141,8 @@ def modem_error_model(device: Device, tx_channel: Channel,
     return link
 
 
-def build_channel_model(device: Device, tx_spec: Channel, rx_spec: Channel, seed: int) -> ChannelModel:
+def build_channel_model(device: Device, tx_spec: Channel, rx_spec: Channel, seed: int,
+                        environment: Environment | None = None) -> ChannelModel:
     """The channel model a device transmits with: its channel's `<channelModel>`, else the device's default
     (`Device.default_model`), made by the model's `from_context` (phy.models).  ValueError: one line."""
     from ..phy.models import ModelContext
@@ -149,7 +150,7 @@ def build_channel_model(device: Device, tx_spec: Channel, rx_spec: Channel, seed
 
     builtins = {"expression": lambda: RateErrorModel(device.error.expr, device.error.unit),
                 "acoustic": lambda: modem_error_model(device, tx_spec, rx_spec)}
-    ctx = ModelContext(device, tx_spec, seed, builtins, device.default_model)
+    ctx = ModelContext(device, tx_spec, seed, builtins, device.default_model, environment)
     spec = tx_spec.model
     name = device.default_model if spec is None else spec.name
     cls = resolve_model(name)
@@ -227,10 +228,10 @@ def make_mac(modem: Modem, spec: MacSpec) -> Mac:
 
 def build_modem(cfg: Device, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
                 tx: PhyChannel, rx: PhyChannel, seeds: Callable[[str, str], int],
-                tx_spec: Channel, rx_spec: Channel) -> Modem:
-    """One modem with its loss model and its MAC, listening on its rx channel."""
+                tx_spec: Channel, rx_spec: Channel, environment: Environment | None = None) -> Modem:
+    """One modem with its channel model and its MAC, listening on its rx channel."""
     try:
-        error = build_channel_model(cfg, tx_spec, rx_spec, seeds("channel", cfg.dccomms_id))
+        error = build_channel_model(cfg, tx_spec, rx_spec, seeds("channel", cfg.dccomms_id), environment)
     except ValueError as e:
         line = tx_spec.model.line if tx_spec.model is not None else cfg.error.line or cfg.line
         raise BuildError(f"device {cfg.dccomms_id!r}: {e}", line) from None

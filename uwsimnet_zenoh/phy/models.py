@@ -53,6 +53,8 @@ class Reception(NamedTuple):
     """Propagation delay, s (None: the channel's straight path)."""
     level_db: float | None = None
     """Received level, dB (re 1 uPa for acoustic models), if the model has one."""
+    doppler: float | None = None
+    """Doppler factor f_received / f_sent, if the model has one."""
 
 
 class Answer(NamedTuple):
@@ -61,6 +63,7 @@ class Answer(NamedTuple):
     per: Sequence[float]
     delay: Sequence[float] | None = None
     level_db: Sequence[float] | None = None
+    doppler: Sequence[float] | None = None
 
 
 class Query:
@@ -104,9 +107,11 @@ class ModelContext:
     the one it would use without a `<channelModel>`), which a model may wrap."""
 
     def __init__(self, device: Any, channel: Any, seed: int, builtins: Mapping[str, Callable[[], ChannelModel]],
-                 default: str) -> None:
+                 default: str, environment: Any = None) -> None:
         self.device = device
         self.channel = channel
+        self.environment = environment
+        """The scene's `<environment>` (scene.model.Environment: origin, sound speed, bathymetry), or None."""
         self.seed = seed
         self.default = default
         self._builtins = builtins
@@ -165,7 +170,9 @@ class ChannelModel:
                                                                   zip(out, q.distances, strict=True)]
         level = None if all(r.level_db is None for r in out) else [
             math.nan if r.level_db is None else float(r.level_db) for r in out]
-        return Answer(per, delay, level)
+        doppler = None if all(r.doppler is None for r in out) else [
+            math.nan if r.doppler is None else float(r.doppler) for r in out]
+        return Answer(per, delay, level, doppler)
 
     # -- what a SINR channel also asks (reports_power = True; phy.acoustic's links have it) --------------
     def received_power(self, distance_m: Any) -> Any:

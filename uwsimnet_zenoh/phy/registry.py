@@ -16,6 +16,7 @@ GROUP = "uwsimnet.channel_models"
 _BUILTIN: dict[str, str] = {
     "expression": "uwsimnet_zenoh.phy.error:RateErrorModel",
     "acoustic": "uwsimnet_zenoh.phy.acoustic:AcousticLink",
+    "ocean": "uwsimnet_zenoh.phy.ocean_model:OceanModel",
 }
 
 

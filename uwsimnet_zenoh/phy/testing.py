@@ -9,7 +9,8 @@
 
 The model is built as the engine's build step builds it (`from_context(params, ModelContext)`, parameters
 nobody reads refused) for a device you describe with keywords (`bitrate`, `expr`/`unit` of its
-rateErrorModel, `address`); the positions and velocities reach it through a real `PoseTable`, as in a run.
+rateErrorModel, `address`), on a channel (`prop_s_per_m`, `min_prop_s`) in an `environment`
+(scene.model.Environment, or None); the positions and velocities reach it through a real `PoseTable`, as in a run.
 docs/channel-models.md shows a whole plug-in tested this way.
 """
 
@@ -36,12 +37,15 @@ class Harness:
 
     def __init__(self, model: str | type[ChannelModel] | ChannelModel, params: Mapping[str, str] | None = None,
                  *, bitrate: float = 1000.0, expr: str = "0", unit: str = "packet", address: int = 1,
-                 seed: int = 1) -> None:
+                 seed: int = 1, prop_s_per_m: float = 1 / 1500, min_prop_s: float = 0.0,
+                 environment: Any = None) -> None:
         self.device = SimpleNamespace(dccomms_id="tx", address=address, bitrate=float(bitrate),
                                       error=SimpleNamespace(expr=expr, unit=unit), acoustic=None)
-        self.channel = SimpleNamespace(id=0, model=None, acoustic=None)
+        self.channel = SimpleNamespace(id=0, model=None, acoustic=None, prop_s_per_m=prop_s_per_m,
+                                       min_prop_s=min_prop_s)
         self.ctx = ModelContext(self.device, self.channel, seed,
-                                {"expression": lambda: RateErrorModel(expr, unit)}, "expression")  # type: ignore[arg-type]
+                                {"expression": lambda: RateErrorModel(expr, unit)}, "expression",  # type: ignore[arg-type]
+                                environment)
         self.draws = random.Random(seed + 1).random
         """The loss draws of `delivery` (the channel draws from the sender's own stream alike)."""
         if isinstance(model, ChannelModel):

@@ -96,13 +96,17 @@ class LegacyVocabulary(XmlReader):
     # --- vehicles ------------------------------------------------------------------------------------
 
     def vehicle(self, el: _El) -> tuple[Vehicle, _El, list[dict[str, _El]]]:
-        k = self.kids(el, single=("name", "position", "trajectory", "poseSource", "poseRate"),
+        k = self.kids(el, single=("name", "position", "geoPosition", "trajectory", "poseSource", "poseRate"),
                       repeat=("CustomCommsDevice", "AcousticCommsDevice"), ignore=_VEHICLE_IGNORED)
         f = _Fields()
         name_el = self.need(k, "name")
         f.set("name", self.string(name_el), "name", name_el)
         if (e := k.get("position")) is not None:
             f.set("position", self.position(e), "position", e)
+        if (e := k.get("geoPosition")) is not None:
+            if "position" in f.values:
+                self.fail(e, "geoPosition: give either <position> or <geoPosition>")
+            f.set("position", self.geo_position(e), "geoPosition", e)  # type: ignore[attr-defined]
         if (e := k.get("trajectory")) is not None:
             wps = self.trajectory(e)
             f.set("trajectory", wps, "trajectory", e)

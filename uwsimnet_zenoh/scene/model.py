@@ -16,6 +16,7 @@ from ..kernel.frame import BROADCAST
 
 if TYPE_CHECKING:
     from ..phy.acoustic import AcousticChannelParams
+    from ..phy.ocean import Bathymetry, SoundSpeedProfile
 # phy.acoustic is imported by the acoustic models' methods: a scene without acoustic devices never needs it
 # (start-up time)
 
@@ -309,6 +310,39 @@ class Simulation(_Model):
     world: str | None = None
 
 
+class Environment(_Model):
+    """`<environment>`: the water of the scene (docs/ocean.md): origin, sound-speed profile, bathymetry, seabed."""
+
+    origin: tuple[float, float] | None = None
+    """(latitude, longitude), degrees WGS-84, of the local frame's origin (x east, y north, z up)."""
+    profile: tuple[tuple[float, float], ...] = ((0.0, 1500.0),)
+    """Sound speed: (depth m, speed m/s) points, linear in between."""
+    profile_name: str = "isovelocity"
+    bathymetry: Literal["flat", "slope", "grid"] = "flat"
+    depth_m: float = Field(default=100.0, gt=0)
+    """Water depth at the origin (flat, slope), m."""
+    gradient: tuple[float, float] = (0.0, 0.0)
+    """slope: depth change per metre east and north."""
+    grid_file: str | None = None
+    seabed_speed_mps: float = Field(default=1600.0, gt=0)
+    seabed_density: float = Field(default=1.8, gt=0)
+    """g/cm^3"""
+    seabed_attenuation: float = Field(default=0.8, ge=0)
+    """dB per wavelength"""
+
+    def sound_speed(self) -> SoundSpeedProfile:
+        from ..phy.ocean import SoundSpeedProfile  # noqa: PLC0415 - see the imports
+
+        return SoundSpeedProfile(self.profile, self.profile_name)
+
+    def seafloor(self) -> Bathymetry:
+        from ..phy.ocean import Bathymetry  # noqa: PLC0415 - see the imports
+
+        if self.bathymetry == "grid" and self.grid_file is not None:
+            return Bathymetry.read_grid(self.grid_file)
+        return Bathymetry(self.bathymetry, self.depth_m, self.gradient)
+
+
 class Scene(_Model):
     name: str = "scene"
     source: str = "<memory>"
@@ -317,6 +351,7 @@ class Scene(_Model):
     channels: tuple[Channel, ...] = ()
     vehicles: tuple[Vehicle, ...] = ()
     flows: tuple[Flow, ...] = ()
+    environment: Environment | None = None
 
     @property
     def world(self) -> str:
