@@ -25,7 +25,7 @@ class SlowWater(ChannelModel):
         self.c = float(params.get("c", "1400"))
         self.extra = float(params.get("extra", "0"))
 
-    def link(self, tx, rx, distance, t, frame):
+    def reception(self, tx, rx, distance, t, frame):
         SEEN.append((tx, rx, distance, t, frame.size))
         return Reception(min(1.0, distance / 10_000), distance / self.c + self.extra, -distance)
 
@@ -34,7 +34,7 @@ class Broken(ChannelModel):
     def __init__(self, params, ctx):
         pass
 
-    def link(self, tx, rx, distance, t, frame):
+    def reception(self, tx, rx, distance, t, frame):
         return Reception(1.5)
 
 
@@ -60,7 +60,7 @@ def test_a_per_pair_model_is_vectorised_by_the_default_answer():
 def test_the_model_sees_positions_velocities_time_and_size():
     SEEN.clear()
     h = testing.Harness(SlowWater)
-    h.link((100.0, 0.0, -5.0), tx=(1.0, 2.0, 3.0), t=7.5, size=33, tx_velocity=(1.0, 0.0, 0.0),
+    h.reception((100.0, 0.0, -5.0), tx=(1.0, 2.0, 3.0), t=7.5, size=33, tx_velocity=(1.0, 0.0, 0.0),
            rx_velocities=[(0.0, -2.0, 0.5)])
     tx, rx, dist, t, size = SEEN[-1]
     assert tx.position == (1.0, 2.0, 3.0) and tx.velocity == (1.0, 0.0, 0.0)

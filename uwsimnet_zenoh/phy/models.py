@@ -5,7 +5,7 @@ parameters) and asked once per transmission, for every receiver the channel need
 transmission's first bit:
 
     answer(q: Query) -> Answer          the vector call (the channel's per-frame path)
-    link(tx, rx, distance, t, frame)    the per-pair call; a simple plug-in implements only this and the
+    reception(tx, rx, distance, t, frame)  the per-pair call; a simple plug-in implements only this and the
                                         default `answer` loops over the receivers
 
 An `Answer` gives, per receiver in the query's order, the probability that the frame is lost ("prop"; the
@@ -45,7 +45,7 @@ class State(NamedTuple):
 
 
 class Reception(NamedTuple):
-    """What `link` returns for one receiver."""
+    """What `reception` returns for one receiver."""
 
     per: float
     """Probability in [0, 1] that the frame is lost (reason "prop")."""
@@ -137,7 +137,7 @@ class ModelContext:
 
 
 class ChannelModel:
-    """Base of every channel model.  Subclass it and implement `link` (simple) or `answer` (fast), then
+    """Base of every channel model.  Subclass it and implement `reception` (simple) or `answer` (fast), then
     name the class in a channel's `<channelModel><name>` as `module:Class` or as an entry point of group
     `uwsimnet.channel_models` (docs/channel-models.md)."""
 
@@ -157,14 +157,14 @@ class ChannelModel:
         `ctx` the device, its channel, a random stream and the built-in models.  Default: cls(params, ctx)."""
         return cls(params, ctx)  # type: ignore[call-arg]
 
-    def link(self, tx: State, rx: State, distance: float, t: float, frame: Frame) -> Reception:
+    def reception(self, tx: State, rx: State, distance: float, t: float, frame: Frame) -> Reception:
         """One receiver's reception of `frame` sent at `t` (override this, or `answer`)."""
-        raise NotImplementedError(f"{type(self).__name__} implements neither link() nor answer()")
+        raise NotImplementedError(f"{type(self).__name__} implements neither reception() nor answer()")
 
     def answer(self, q: Query) -> Answer:
-        """Every receiver of `q` at once; by default `link` for each of them."""
+        """Every receiver of `q` at once; by default `reception` for each of them."""
         tx = q.sender
-        out = [self.link(tx, rx, float(d), q.t, q.frame) for rx, d in zip(q.receivers, q.distances, strict=True)]
+        out = [self.reception(tx, rx, float(d), q.t, q.frame) for rx, d in zip(q.receivers, q.distances, strict=True)]
         per = [_probability(r.per) for r in out]
         delay = None if all(r.delay is None for r in out) else [_delay(r.delay, d) for r, d in
                                                                   zip(out, q.distances, strict=True)]
@@ -190,14 +190,14 @@ class ChannelModel:
 
     def per(self, distance_m: Any, size_bytes: int) -> Any:
         """PER at each distance, on a straight horizontal line with both ends still at t = 0 (the view's
-        curves): `link` with the sender at the origin."""
+        curves): `reception` with the sender at the origin."""
         import numpy as np
 
         from ..kernel.frame import Frame
 
         d = np.atleast_1d(np.asarray(distance_m, dtype=float))
         f = Frame(0, 0, 0, int(size_bytes), int(size_bytes))
-        out = [self.link(State((0.0, 0.0, 0.0)), State((float(x), 0.0, 0.0)), float(x), 0.0, f).per for x in d]
+        out = [self.reception(State((0.0, 0.0, 0.0)), State((float(x), 0.0, 0.0)), float(x), 0.0, f).per for x in d]
         return np.array(out, dtype=float).reshape(np.shape(distance_m))
 
 
@@ -224,7 +224,7 @@ class DistanceModel(ChannelModel):
     def answer(self, q: Query) -> Answer:
         return Answer(self.losses(q.distances, q.size))
 
-    def link(self, tx: State, rx: State, distance: float, t: float, frame: Frame) -> Reception:
+    def reception(self, tx: State, rx: State, distance: float, t: float, frame: Frame) -> Reception:
         return Reception(float(self.losses([distance], frame.size)[0]))
 
 

@@ -118,12 +118,13 @@ PRESETS: dict[str, tuple[str, SoundSpeedProfile]] = {
     "isovelocity": ("1500 m/s at every depth: the straight-path model's water.",
                     SoundSpeedProfile([(0.0, 1500.0)], "isovelocity")),
     "summer-thermocline": (
-        "Synthetic summer shelf profile (not a measurement): a 20 m mixed layer at 22 degC over a seasonal "
-        "thermocline down to 14 degC at 45 m, 13.5 degC at 200 m, salinity 37 ppt (the shape of Western "
-        "Mediterranean summer profiles), speeds by Mackenzie (1981): ~1528 m/s above, ~1504 m/s below; "
-        "downward refracting, so sound from the mixed layer leaves a shadow zone beneath it at range.",
-        SoundSpeedProfile.from_ts([(0.0, 22.0, 37.0), (20.0, 22.0, 37.0), (45.0, 14.0, 37.0),
-                                   (200.0, 13.5, 37.0)], "summer-thermocline")),
+        "Synthetic summer profile (not a measurement): 24 degC at the surface, 22.5 degC at 10 m, a seasonal "
+        "thermocline down to 14 degC at 40 m, 13.5 degC at 300 m, salinity 37 ppt (the shape of Western "
+        "Mediterranean summer profiles), speeds by Mackenzie (1981): 1534 m/s at the surface, 1507 m/s below "
+        "40 m.  Downward refracting from the surface, so a shallow source leaves a shadow zone near the surface "
+        "beyond about 700 m; receivers below the layer are reached (docs/ocean.md).",
+        SoundSpeedProfile.from_ts([(0.0, 24.0, 37.0), (10.0, 22.5, 37.0), (40.0, 14.0, 37.0),
+                                   (300.0, 13.5, 37.0)], "summer-thermocline")),
     "munk": ("Munk (1974) canonical deep-sound-channel profile, axis at 1300 m (see munk_profile).",
              munk_profile()),
 }

@@ -17,6 +17,7 @@ _BUILTIN: dict[str, str] = {
     "expression": "uwsimnet_zenoh.phy.error:RateErrorModel",
     "acoustic": "uwsimnet_zenoh.phy.acoustic:AcousticLink",
     "ocean": "uwsimnet_zenoh.phy.ocean_model:OceanModel",
+    "bellhop": "uwsimnet_zenoh.phy.bellhop:BellhopModel",
 }
 
 

@@ -2,7 +2,7 @@
 
     from uwsimnet_zenoh.phy import testing
     h = testing.Harness("mypkg.fading:Rician", {"K": "4"})      # a model by name or class, on a fake device
-    r = h.link(rx=(800.0, 0.0, -10.0), size=64)                 # one receiver: a phy.models.Reception
+    r = h.reception((800.0, 0.0, -10.0), size=64)              # one receiver: a phy.models.Reception
     a = h.answer([(500.0, 0, 0), (900.0, 0, 0)], size=64)       # the vector call the channel makes
     p = h.delivery((800.0, 0, 0), frames=2000, size=64)        # fraction delivered, drawn as the channel does
     assert h.check() == []                                      # the port's contract, at a few geometries
@@ -84,7 +84,7 @@ class Harness:
                                       list(range(1, len(receivers) + 1))))
         return ans
 
-    def link(self, rx: Sequence[float], **kw: Any) -> Reception:
+    def reception(self, rx: Sequence[float], **kw: Any) -> Reception:
         """One receiver, through the vector call: a `Reception`."""
         a = self.answer([rx], **kw)
         return Reception(float(a.per[0]), None if a.delay is None else float(a.delay[0]),
