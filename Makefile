@@ -55,7 +55,7 @@ ros2-oracle:
 BELLHOP_PY ?= python3.12
 bellhop:
 	@test -x .tools/bellhop/bin/python || { $(BELLHOP_PY) -c '' 2>/dev/null && $(BELLHOP_PY) -m venv .tools/bellhop \
-	  || PYENV_VERSION=$$(pyenv versions --bare 2>/dev/null | grep '^3\.1[2-9]' | tail -1) python3.12 -m venv .tools/bellhop; }
+	  || PYENV_VERSION=$$(pyenv versions --bare 2>/dev/null | grep '^3\.12' | tail -1) python3.12 -m venv .tools/bellhop; }
 	.tools/bellhop/bin/pip install -q aubellhop==0.2.1
 	@ls .tools/bellhop/lib/python3*/site-packages/aubellhop/bin/bellhop.exe
 
