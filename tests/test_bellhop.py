@@ -102,7 +102,7 @@ def test_cached_grid_against_a_direct_bellhop_run_at_20_random_geometries():
             arr = bellhop.run_bellhop(PROGRAM, bellhop.env_text(25_000.0, profile, env.depth_m, seabed, [10.0], [zr],
                                                                 [r], "A"), "arr", d)
         _, _, _, p = bellhop.read_shd(shd)
-        first, _ = bellhop.read_arrivals(arr.decode())
+        first, _, _ = bellhop.read_arrivals(arr.decode())
         tl, dl = grid.lookup([10.0], [zr], [r])
         worst_tl = max(worst_tl, abs(tl[0] + 20 * math.log10(abs(p[0, 0, 0]))))
         worst_dt = max(worst_dt, abs(dl[0] - first[0, 0, 0]))

@@ -6,8 +6,11 @@ Per receiver: horizontal range r and the two depths -> TL (incoherent, Bellhop r
 significant arrival (run type 'A': the earliest arrival within 20 dB of the strongest) by trilinear
 interpolation in (source depth, receiver depth, range); then, with the device's acoustic mode (its
 `AcousticLink`: SL, NL, DI, B/R, modulation), Eb/N0 = SL - TL - NL + DI + 10 log10(B/R) - implementation loss,
-BER by the modulation, PER = 1 - (1 - BER)^(8 L).  The arrival is the delay.  A receiver with no arrival, or
-beyond the grid, loses the frame.  The environment is range-independent here: the depth below the origin.
+BER by the modulation, PER = 1 - (1 - BER)^(8 L).  Delay spread as a loss (`<isi>off</isi>` to leave it out):
+the fraction f of the arrivals' energy that comes more than one bit after the first arrival is interference,
+SINR = (1 - f) SNR / (1 + f SNR), and Eb/N0 = SINR B/R (less the implementation loss).  The arrival is the
+delay.  A receiver with no arrival, or beyond the grid, loses the frame.  The environment is range-independent
+here: the depth below the origin.
 The grid's source depths are `sources` (or every `sourceStep` m); a sender far from all of them whose receiver
 is nearer one swaps the two ends (reciprocity: the same TL and travel time both ways).
 
@@ -33,7 +36,9 @@ import numpy as np
 from .acoustic import MODULATIONS, AcousticLink
 from .models import Answer, ChannelModel, ModelContext, Query
 
-GRID_VERSION = "uwsimnet-bellhop-grid-1"
+GRID_VERSION = "uwsimnet-bellhop-grid-2"
+LATE_S = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1)
+"""Delays after the first arrival (s) at which the grid keeps the fraction of arrival energy still to come."""
 HOWTO = ("Bellhop not found: run `make bellhop` (installs the aubellhop wheel's binary into .tools/bellhop),"
          " or name the program in <program> or in UWSIMNET_BELLHOP")
 
@@ -99,9 +104,10 @@ def _rr_is_double(data: bytes, rec: int, nrr: int) -> bool:
     return bool(np.all(np.isfinite(v)) and np.all(np.diff(v) > 0) and v[-1] < 1e8)
 
 
-def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
-    """First significant arrival (earliest within `window_db` of the strongest; nan: none) and the rms delay
-    spread, s, per (source depth, receiver depth, range) of a Bellhop ascii .arr file ('2D')."""
+def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per (source depth, receiver depth, range) of a Bellhop ascii .arr file ('2D'): the first significant
+    arrival (earliest within `window_db` of the strongest; nan: none), the rms delay spread (s), and the
+    fraction of the arrivals' energy (sum |A|^2) that comes later than first + each of LATE_S."""
     tok = text.split()
     if not tok or "2D" not in tok[0]:
         raise ValueError("not a 2D Bellhop arrivals file")
@@ -114,6 +120,8 @@ def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.nd
     nsd, nrd, nrr = counts
     first = np.full((nsd, nrd, nrr), np.nan)
     spread = np.full((nsd, nrd, nrr), np.nan)
+    late = np.zeros((nsd, nrd, nrr, len(LATE_S)))
+    offsets = np.array(LATE_S)
     for i in range(nsd):
         pos += 1                                  # the source's largest count
         for j in range(nrd):
@@ -130,27 +138,40 @@ def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.nd
                 w = amp ** 2
                 mean = float(np.sum(w * delay) / np.sum(w))
                 spread[i, j, k] = math.sqrt(max(0.0, float(np.sum(w * (delay - mean) ** 2) / np.sum(w))))
-    return first, spread
+                after = delay[None, :] > first[i, j, k] + offsets[:, None]
+                late[i, j, k] = (after * w[None, :]).sum(axis=1) / w.sum()
+    return first, spread, late
 
 
 class Grid:
     """TL (dB) and first-arrival delay (s) on (source depth, receiver depth, range) axes; trilinear lookup."""
 
     def __init__(self, sd: np.ndarray, rd: np.ndarray, rr: np.ndarray, tl: np.ndarray, delay: np.ndarray,
-                 spread: np.ndarray) -> None:
+                 spread: np.ndarray, late: np.ndarray) -> None:
         self.sd, self.rd, self.rr = (np.asarray(a, dtype=float) for a in (sd, rd, rr))
-        self.tl, self.delay, self.spread = (np.asarray(a, dtype=float) for a in (tl, delay, spread))
+        self.tl, self.delay, self.spread, self.late = (np.asarray(a, dtype=float) for a in (tl, delay, spread, late))
 
     def save(self, path: str | Path) -> None:
         tmp = f"{path}.tmp{os.getpid()}.npz"
         np.savez_compressed(tmp, sd=self.sd, rd=self.rd, rr=self.rr, tl=self.tl, delay=self.delay,
-                            spread=self.spread)
+                            spread=self.spread, late=self.late)
         os.replace(tmp, path)
 
     @classmethod
     def load(cls, path: str | Path) -> Grid:
         with np.load(path) as z:
-            return cls(z["sd"], z["rd"], z["rr"], z["tl"], z["delay"], z["spread"])
+            return cls(z["sd"], z["rd"], z["rr"], z["tl"], z["delay"], z["spread"], z["late"])
+
+    def late_fraction(self, zs: Any, zr: Any, r: Any, after_s: float) -> np.ndarray:
+        """The fraction of the arrivals' energy later than first + after_s (log-linear between LATE_S)."""
+        zs, zr, r = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (zs, zr, r))
+        x = math.log(min(max(after_s, LATE_S[0]), LATE_S[-1]))
+        xs = [math.log(v) for v in LATE_S]
+        m = min(max(int(np.searchsorted(xs, x, side="right")) - 1, 0), len(xs) - 2)
+        w = (x - xs[m]) / (xs[m + 1] - xs[m])
+        a = _trilinear(self.sd, self.rd, self.rr, self.late[..., m], zs, zr, r)
+        b = _trilinear(self.sd, self.rd, self.rr, self.late[..., m + 1], zs, zr, r)
+        return (1 - w) * a + w * b
 
     def lookup(self, zs: Any, zr: Any, r: Any) -> tuple[np.ndarray, np.ndarray]:
         """TL and delay at source depths zs, receiver depths zr, ranges r (arrays): nan beyond the ranges."""
@@ -210,13 +231,12 @@ def compute_grid(program: str, freq_hz: float, profile: list[tuple[float, float]
         _, _, _, p = read_shd(shd)
         with np.errstate(divide="ignore"):
             tl = -20.0 * np.log10(np.abs(p[0]))
-        first, spread = read_arrivals(arr.decode())
-        return tl, first[0], spread[0]
+        first, spread, late = read_arrivals(arr.decode())
+        return tl, first[0], spread[0], late[0]
 
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
         parts = list(pool.map(one, sds))
-    return Grid(np.array(sds), np.array(rds), np.array(rrs_m), np.stack([p[0] for p in parts]),
-                np.stack([p[1] for p in parts]), np.stack([p[2] for p in parts]))
+    return Grid(np.array(sds), np.array(rds), np.array(rrs_m), *(np.stack([p[n] for p in parts]) for n in range(4)))
 
 
 def cache_dir() -> Path:
@@ -227,7 +247,7 @@ class BellhopModel(ChannelModel):
     """Ray-traced acoustics for an AcousticCommsDevice in the scene's <environment> (module docstring)."""
 
     family = "bellhop"
-    params_known = ("program", "workers")
+    params_known = ("program", "workers", "isi")
     """Read only when the grid is not cached yet."""
 
     def __init__(self, params: Any, ctx: ModelContext) -> None:
@@ -238,8 +258,10 @@ class BellhopModel(ChannelModel):
         self.link = base if isinstance(base, AcousticLink) else base.link     # a FixedBerLink's physics
         m = self.link.modem
         self.freq_hz = float(m.carrier_khz) * 1e3
-        self.ebn0_const = (self.link.sl_db - self.link.nl_db + self.link.di_db + self.link.bw_gain_db
-                           - m.implementation_loss_db)
+        self.snr_const = self.link.sl_db - self.link.nl_db + self.link.di_db      # SNR = this - TL, dB
+        self.to_ebn0 = 10 ** (0.1 * (self.link.bw_gain_db - m.implementation_loss_db))   # B/R / impl. loss
+        self.bit_s = 1.0 / float(m.bitrate_bps)
+        self.isi = params.get("isi", "on") != "off"
         self.ber = MODULATIONS[m.modulation]
         bottom = float(env.seafloor().depth(0.0, 0.0))
         max_range = float(params.get("maxRange", "5000"))
@@ -282,12 +304,15 @@ class BellhopModel(ChannelModel):
         swap = off > np.abs(zr[:, None] - sd).min(axis=1)
         zs, zr = np.where(swap, zr, zs), np.where(swap, zs, zr)
         tl, delay = self.grid.lookup(zs, zr, rr)
+        late = self.grid.late_fraction(zs, zr, rr, self.bit_s) if self.isi else np.zeros(len(tl))
         per = []
-        for t in tl:
+        for t, f in zip(tl, late, strict=True):
             if not math.isfinite(t):
                 per.append(1.0)
                 continue
-            e = self.ebn0_const - float(t)
-            b = float(self.ber(10.0 ** (0.1 * min(e, 3000.0))))
+            snr = 10.0 ** (0.1 * min(self.snr_const - float(t), 3000.0))
+            f = min(max(float(f), 0.0), 1.0)
+            ebn0 = (1.0 - f) * snr / (1.0 + f * snr) * self.to_ebn0     # ISI: energy a bit late is interference
+            b = float(self.ber(ebn0))
             per.append(1.0 if b >= 1.0 else -math.expm1(8.0 * q.size * math.log1p(-b)))
         return Answer(per, [float(d) for d in delay], [float(self.link.sl_db - t) for t in tl])
