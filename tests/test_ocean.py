@@ -142,8 +142,7 @@ def test_geo_position_needs_an_origin_and_validate_says_so_in_one_line(tmp_path)
     p.write_text(text)
     r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "validate", str(p)], capture_output=True,
                        text=True, timeout=120)
-    assert r.returncode == 2 and r.stderr.strip() == f"{p}:11: geoPosition: needs <environment><origin> (before the" \
-                                                     " vehicles)"
+    assert r.returncode == 2 and r.stderr.strip() == f"{p}:11: geoPosition: needs <environment><origin>"
 
 
 def test_bathymetry_grid_file(tmp_path):

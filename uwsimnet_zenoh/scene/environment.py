@@ -98,7 +98,7 @@ class EnvironmentVocabulary(XmlReader):
 
         lat, lon, depth = self._numbers(el, 3, "geoPosition", "'latitude longitude depth' (degrees, m)")
         if self.origin is None:
-            self.fail(el, "geoPosition: needs <environment><origin> (before the vehicles)")
+            self.fail(el, "geoPosition: needs <environment><origin>")
         if not (-90 < lat < 90 and -180 <= lon <= 180 and depth >= 0):
             self.fail(el, f"geoPosition: latitude within (-90, 90), longitude within [-180, 180] and depth >= 0"
                           f" expected, got {lat:g} {lon:g} {depth:g}")
