@@ -129,3 +129,14 @@ def test_naming_a_builtin_is_the_default():
     assert len([r for r in rec if r["ev"] == "rx"]) == 20
     with pytest.raises(BuildError, match="AcousticCommsDevice"):
         _net(ModelSpec(name="acoustic"))
+
+
+def test_per_curves_for_the_view_go_through_the_port():
+    from uwsimnet_zenoh.phy.models import ModelContext
+    from uwsimnet_zenoh.phy.ocean_model import OceanModel
+
+    model = SlowWater({}, None)
+    assert list(model.per([100.0, 2500.0, 20_000.0], 10)) == pytest.approx([0.01, 0.25, 1.0])
+    ctx = ModelContext(None, Channel(id=0, prop_s_per_m=1 / 1500), 1,
+                       {"expression": lambda: testing.RateErrorModel("1e-4*m", "packet")}, "expression")
+    assert OceanModel({}, ctx).per(1000.0, 10) == pytest.approx(0.1)

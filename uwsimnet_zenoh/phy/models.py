@@ -189,16 +189,21 @@ class ChannelModel:
         raise NotImplementedError(f"{type(self).__name__} gives no PER from SINR")
 
     def per(self, distance_m: Any, size_bytes: int) -> Any:
-        """PER at each distance, on a straight horizontal line with both ends still at t = 0 (the view's
-        curves): `reception` with the sender at the origin."""
+        """PER at each distance on a horizontal line at the surface, both ends still, at t = 0 (the view's
+        curves): one `answer` with the sender at the origin and a receiver at each distance along x."""
         import numpy as np
 
         from ..kernel.frame import Frame
+        from ..mobility.trajectory import PoseTable
 
-        d = np.atleast_1d(np.asarray(distance_m, dtype=float))
+        d = np.atleast_1d(np.asarray(distance_m, dtype=float)).ravel()
+        poses = PoseTable(["tx"] + [f"rx{i}" for i in range(len(d))])
+        for i, x in enumerate(d.tolist()):
+            poses.set_static(f"rx{i}", (x, 0.0, 0.0))
         f = Frame(0, 0, 0, int(size_bytes), int(size_bytes))
-        out = [self.reception(State((0.0, 0.0, 0.0)), State((float(x), 0.0, 0.0)), float(x), 0.0, f).per for x in d]
-        return np.array(out, dtype=float).reshape(np.shape(distance_m))
+        n = len(d)
+        ans = self.answer(Query(0.0, f, d.tolist(), list(range(n)), poses, 0, list(range(1, n + 1))))
+        return np.array([float(p) for p in ans.per], dtype=float).reshape(np.shape(distance_m))
 
 
 class DistanceModel(ChannelModel):
