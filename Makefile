@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: paper test lint bench clean native ros2-peers ros2-oracle
+.PHONY: paper test lint bench clean native ros2-peers ros2-oracle bellhop
 
 $(STAMP): pyproject.toml gli_clients/python/pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) on PATH (or make PY=python3)"; exit 2; }
@@ -49,6 +49,15 @@ ros2-oracle:
 	@s=$$(cat uwsimnet_zenoh/ros2/interfaces/*/msg/*.msg uwsimnet_zenoh/ros2/interfaces/*/*.* tests/ros2_oracle/setup.sh \
 	      | sha256sum | cut -c1-16); test "$$(cat .venv-ros2-jazzy/.stamp 2>/dev/null)" = "$$s" \
 	  || { nice -n 10 bash tests/ros2_oracle/setup.sh .venv-ros2-jazzy $(PY) && echo $$s > .venv-ros2-jazzy/.stamp; }
+
+## Bellhop (Acoustics Toolbox, GPL-3) for the channel model "bellhop" (docs/ocean.md): the aubellhop wheel ships
+## a working binary; it needs Python >= 3.12, so it goes into a tool venv of its own. Run as a program, never imported.
+BELLHOP_PY ?= python3.12
+bellhop:
+	@test -x .tools/bellhop/bin/python || { $(BELLHOP_PY) -c '' 2>/dev/null && $(BELLHOP_PY) -m venv .tools/bellhop \
+	  || PYENV_VERSION=$$(pyenv versions --bare 2>/dev/null | grep '^3\.12' | tail -1) python3.12 -m venv .tools/bellhop; }
+	.tools/bellhop/bin/pip install -q aubellhop==0.2.1
+	@ls .tools/bellhop/lib/python3*/site-packages/aubellhop/bin/bellhop.exe
 
 clean:
 	rm -rf $(VENV) out .venv-zenoh-* .venv-ros2-jazzy build/native

@@ -1,8 +1,9 @@
 """The build step (ns-3's helpers): a scene's device and channel specs become running parts.
 
-`build_modem` makes one `phy.Modem` with its loss model (the rateErrorModel expression, or the acoustic
-physics) and its MAC (`mac.resolve`), so models never build their collaborators.  This is also the one place
-where an `AcousticCommsChannel` and an `AcousticCommsDevice` become numbers (`AcousticChannelParams`,
+`build_modem` makes one `phy.Modem` with its channel model (`build_channel_model`: the channel's
+`<channelModel>` by name through phy.registry, else the device's default, the rateErrorModel expression or
+the acoustic physics) and its MAC (`mac.resolve`), so models never build their collaborators.  This is
+also the one place where an `AcousticCommsChannel` and an `AcousticCommsDevice` become numbers (`AcousticChannelParams`,
 `AcousticModemParams`, the `AcousticLink` a modem uses as its loss model).  Sans-IO, numpy only.
 
 Resolution of a device's parameters, first match wins:
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..mac import Mac, resolve
 from ..phy.error import RateErrorModel
+from ..phy.models import ChannelModel
 from ..phy.modem import Modem
 
 if TYPE_CHECKING:
@@ -30,10 +32,11 @@ if TYPE_CHECKING:
     from ..kernel.scheduler import Scheduler
     from ..phy.acoustic import AcousticChannelParams, AcousticLink, AcousticModemParams, FixedBerLink
     from ..phy.channel import Channel as PhyChannel
-    from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device, MacSpec
+    from ..scene.model import AcousticChannelSpec, AcousticDeviceSpec, Channel, Device, Environment, MacSpec
     from ..trace.tracer import Tracer
 
-__all__ = ["DEFAULT_CARRIER_KHZ", "DEFAULT_POWER_W", "BuildError", "FixedBerLink", "build_error_model", "build_modem",
+__all__ = ["DEFAULT_CARRIER_KHZ", "DEFAULT_POWER_W", "BuildError", "FixedBerLink", "build_channel_model",
+           "build_error_model", "build_modem",
            "channel_options", "channel_params", "default_bitrate", "make_mac", "modem_error_model",
            "modem_params", "prop_s_per_m", "sound_speed"]
 
@@ -128,21 +131,49 @@ def channel_options(channel: Channel) -> dict:
 
 
 def modem_error_model(device: Device, tx_channel: Channel,
-                      rx_channel: Channel | None = None) -> AcousticLink | FixedBerLink | None:
-    """The loss model a modem needs beyond its `rateErrorModel`, or None (the custom-modem path).
-
-    An acoustic device gets `build_error_model`; a custom device may not transmit on a SINR channel (its
-    received power is unknown).  Raises ValueError with the reason otherwise."""
-    if device.acoustic is None:
-        if channel_options(tx_channel):
-            raise ValueError(f"device {device.dccomms_id!r}: channel {tx_channel.id} decides collisions by SINR,"
-                             " which needs the received power of every transmitter: only an AcousticCommsDevice"
-                             " can transmit on it")
-        return None
+                      rx_channel: Channel | None = None) -> AcousticLink | FixedBerLink:
+    """The acoustic physics of a device transmitting on ``tx_channel`` (the built-in channel model
+    "acoustic").  Raises ValueError with the reason if the device or a channel is not acoustic."""
+    link = build_error_model(device, tx_channel)
     if rx_channel is not None and rx_channel.acoustic is None:
         raise ValueError(f"device {device.dccomms_id!r}: an AcousticCommsDevice needs an AcousticCommsChannel,"
                          f" channel {rx_channel.id} is a CustomCommsChannel")
-    return build_error_model(device, tx_channel)
+    return link
+
+
+def build_channel_model(device: Device, tx_spec: Channel, rx_spec: Channel, seed: int,
+                        environment: Environment | None = None) -> ChannelModel:
+    """The channel model a device transmits with: its channel's `<channelModel>`, else the device's default
+    (`Device.default_model`), made by the model's `from_context` (phy.models).  ValueError: one line."""
+    from ..phy.models import ModelContext
+    from ..phy.registry import resolve as resolve_model
+
+    builtins = {"expression": lambda: RateErrorModel(device.error.expr, device.error.unit),
+                "acoustic": lambda: modem_error_model(device, tx_spec, rx_spec)}
+    ctx = ModelContext(device, tx_spec, seed, builtins, device.default_model, environment)
+    spec = tx_spec.model
+    name = device.default_model if spec is None else spec.name
+    cls = resolve_model(name)
+    params = _ReadParams({} if spec is None else spec.params)
+    try:
+        model = cls.from_context(params, ctx)
+    except ValueError as e:
+        if spec is None:
+            raise
+        raise ValueError(f"channel model {name!r}: {e}") from None
+    except Exception as e:  # noqa: BLE001 - a plug-in's constructor: one line, not a traceback
+        raise ValueError(f"channel model {name!r} could not be built: {type(e).__name__}: {e}") from None
+    if not isinstance(model, ChannelModel):
+        raise ValueError(f"channel model {name!r}: from_context gave a {type(model).__name__}, not a ChannelModel")
+    unknown = set(params) - params.read - set(getattr(cls, "params_known", ()))
+    if unknown:
+        known = sorted(params.read | set(getattr(cls, "params_known", ()))) or ["none"]
+        raise ValueError(f"channelModel {name}: unknown parameter(s) {', '.join(sorted(unknown))}"
+                         f" (it reads: {', '.join(known)})")
+    if channel_options(tx_spec) and not model.reports_power:
+        raise ValueError(f"channel {tx_spec.id} decides collisions by SINR, which needs the received power of"
+                         f" every transmitter: channel model {name!r} reports none")
+    return model
 
 
 class BuildError(ValueError):
@@ -197,12 +228,13 @@ def make_mac(modem: Modem, spec: MacSpec) -> Mac:
 
 def build_modem(cfg: Device, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
                 tx: PhyChannel, rx: PhyChannel, seeds: Callable[[str, str], int],
-                tx_spec: Channel, rx_spec: Channel) -> Modem:
-    """One modem with its loss model and its MAC, listening on its rx channel."""
+                tx_spec: Channel, rx_spec: Channel, environment: Environment | None = None) -> Modem:
+    """One modem with its channel model and its MAC, listening on its rx channel."""
     try:
-        error = modem_error_model(cfg, tx_spec, rx_spec) or RateErrorModel(cfg.error.expr, cfg.error.unit)
+        error = build_channel_model(cfg, tx_spec, rx_spec, seeds("channel", cfg.dccomms_id), environment)
     except ValueError as e:
-        raise BuildError(f"device {cfg.dccomms_id!r}: {e}", cfg.error.line or cfg.line) from None
+        line = tx_spec.model.line if tx_spec.model is not None else cfg.error.line or cfg.line
+        raise BuildError(f"device {cfg.dccomms_id!r}: {e}", line) from None
     modem = Modem(cfg, vehicle, vehicle_index, sched, tracer, tx, rx, seeds, error)
     try:
         mac = make_mac(modem, cfg.mac)

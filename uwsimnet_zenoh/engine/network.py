@@ -82,7 +82,8 @@ class Network:
         tx_spec, rx_spec = (next(c for c in self.scene.channels if c.id == ch)
                             for ch in (cfg.tx_channel, cfg.rx_channel))
         m = build_modem(cfg, vehicle, self.poses.index[vehicle], self.sched, self.tracer,
-                        self.channels[cfg.tx_channel], self.channels[cfg.rx_channel], self.seeds, tx_spec, rx_spec)
+                        self.channels[cfg.tx_channel], self.channels[cfg.rx_channel], self.seeds, tx_spec, rx_spec,
+                        self.scene.environment)
         self.modems[cfg.dccomms_id] = m
         return m
 

@@ -55,6 +55,17 @@ class Trajectory:
         (x0, y0, z0), (x1, y1, z1) = self.p[i], self.p[i + 1]
         return (x0 + f * (x1 - x0), y0 + f * (y1 - y0), z0 + f * (z1 - z0))
 
+    def velocity(self, t: float) -> Point:
+        """The velocity at t, m/s: the slope of the segment t falls in (zero before the first waypoint and
+        from the last one on; at a waypoint, the segment that starts there)."""
+        ts = self.t
+        if t < ts[0] or t >= ts[-1]:
+            return ORIGIN
+        i = bisect_right(ts, t) - 1
+        dt = ts[i + 1] - ts[i]
+        (x0, y0, z0), (x1, y1, z1) = self.p[i], self.p[i + 1]
+        return ((x1 - x0) / dt, (y1 - y0) / dt, (z1 - z0) / dt)
+
     @property
     def end(self) -> float:
         return self.t[-1]
@@ -201,3 +212,10 @@ class PoseTable:
 
     def position(self, name: str, t: float) -> Point:
         return self.points(t)[self.index[name]]
+
+    def velocity(self, i: int, t: float) -> Point:
+        """Vehicle i's velocity at t, m/s: its trajectory's segment, the last external sample's, or zero."""
+        traj = self._scripted.get(i)
+        if traj is not None:
+            return traj.velocity(t)
+        return self._vel[i] if i in self._external and self.known[i] else ORIGIN

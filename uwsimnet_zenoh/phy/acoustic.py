@@ -37,16 +37,17 @@ from typing import TypeAlias
 
 import numpy as np
 
+from .models import DistanceModel
+
 ArrayLike: TypeAlias = float | np.ndarray
 Absorption: TypeAlias = str | float | Callable[[np.ndarray], np.ndarray]
 
 __all__ = [
-    "AcousticChannelParams", "AcousticLink", "AcousticModemParams", "MODULATIONS", "PRESETS",
-    "ber_bfsk_coherent", "ber_bfsk_noncoherent", "ber_bpsk", "ber_bpsk_rayleigh", "ber_dpsk",
-    "calibrate_margin", "db_to_linear", "ebn0_db", "erfc", "francois_garrison_db_per_km",
-    "linear_to_db", "noise_level_db", "noise_psd_db", "per_from_ber", "required_ebn0_db",
-    "snr_db", "sound_speed_francois_garrison", "sound_speed_mackenzie", "source_level_db",
-    "thorp_db_per_km", "transmission_loss_db",
+    "AcousticChannelParams", "AcousticLink", "AcousticModemParams", "MODULATIONS", "PRESETS", "ber_bfsk_coherent",
+    "ber_bfsk_noncoherent", "ber_bpsk", "ber_bpsk_rayleigh", "ber_dpsk", "calibrate_margin", "db_to_linear",
+    "ebn0_db", "erfc", "francois_garrison_db_per_km", "linear_to_db", "noise_level_db", "noise_psd_db",
+    "per_from_ber", "required_ebn0_db", "snr_db", "sound_speed_francois_garrison", "sound_speed_mackenzie",
+    "source_level_db", "thorp_db_per_km", "transmission_loss_db",
 ]
 
 
@@ -483,7 +484,7 @@ _SMALL = 48            # per(): up to this many distances, a Python loop over ma
 _EBN0_CAP_DB = 3000.0  # 10^(0.1 x) stays finite
 
 
-class AcousticLink:
+class AcousticLink(DistanceModel):
     """A modem mode in a given water: received level, SNR, BER and PER as functions of distance.
 
     Everything independent of distance is computed once here, so ``per(distance_m, size_bytes)`` (the
@@ -497,6 +498,8 @@ class AcousticLink:
 
     __slots__ = ("channel", "modem", "c_mps", "alpha_db_per_km", "sl_db", "nl_db", "di_db", "bw_gain_db",
                  "_k10", "_alpha_per_m", "_ebn0_const", "_ber", "_ber1", "_noise_lin", "_sinr_to_ebn0")
+    reports_power = True
+    family = "acoustic"         # the channel model "acoustic" (phy.models.DistanceModel.from_context)
 
     def __init__(self, channel: AcousticChannelParams | None = None,
                  modem: AcousticModemParams | str = "evologics-s2cr-18-34") -> None:
@@ -715,7 +718,7 @@ PRESETS: dict[str, AcousticModemParams] = {
 """Named modem presets; see docs/acoustic.md for the table and the sources."""
 
 
-class FixedBerLink:
+class FixedBerLink(DistanceModel):
     """An `AcousticLink` whose noise-limited bit error rate is a constant (legacy ``bitErrorRate``).
 
     per(d, L) = 1 - (1 - BER)^(8L) at every distance; the received power, the noise and PER from SINR
@@ -723,6 +726,8 @@ class FixedBerLink:
     """
 
     __slots__ = ("link", "ber")
+    reports_power = True
+    family = "acoustic"
 
     def __init__(self, link: AcousticLink, ber: float) -> None:
         self.link = link

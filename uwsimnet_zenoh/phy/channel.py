@@ -11,6 +11,9 @@ transmission is an interval in its own column, so receiving while transmitting i
 Carrier sense is a query on the same log.  ns-3 spends 2-3 events per receiver per frame instead.
 A channel in SINR mode (acoustic, issue #5) keeps each transmission's received power per listener and
 replaces the binary rule by capture on the minimum SINR (`_reception_end_sinr`, phy.interference).
+What a receiver gets of the signal (loss probability, and a propagation delay if the model has its own) is
+the transmitter's channel model's answer (phy.models): one `answer` call per transmission for all the
+receivers that need an outcome; the channel does not know which model it is.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from typing import TYPE_CHECKING, Any, Final, cast
 from ..kernel.frame import BROADCAST, Frame
 from ..kernel.link import Medium
 from .interference import classify, min_sinr_db
+from .models import Query
 
 if TYPE_CHECKING:
     import numpy as np
@@ -304,7 +308,13 @@ class Channel(Medium):
                 self._unreachable(sender, frame, j, now, dist)
                 return
             err = sender.error
-            per = 0.0 if getattr(err, "lossless", False) is True else float(err.per(dist[j:j + 1], frame.size)[0])
+            if err.by_distance:
+                per = float(err.losses(dist[j:j + 1], frame.size)[0])
+            else:
+                ans = err.answer(Query(now, frame, dist[j:j + 1], (j,), self.poses, sender.vehicle_index, self._veh))
+                per = float(ans.per[0])
+                if ans.delay is not None:
+                    delay = self._retime(tx, (j,), ans.delay)
             end = float(delay[j]) + now + dur          # = (delay + now + dur)[j], the same double
             if sinr:
                 self.sched.at(end, self._end_sinr_at, tx, j, sender.loss_random(), per, True)
@@ -328,13 +338,17 @@ class Channel(Medium):
         else:
             reach = ok[targets]
             far = dist[targets]
+        pers: Any = None
         err = sender.error
         if not any(reach):
-            pers: Any = None
-        elif getattr(err, "lossless", False) is True:
-            pers = [0.0] * len(targets)
+            pass
+        elif err.by_distance:
+            pers = err.losses(far, frame.size)
         else:
-            pers = err.per(far, frame.size)
+            ans = err.answer(Query(now, frame, far, targets, self.poses, sender.vehicle_index, self._veh))
+            pers = ans.per
+            if ans.delay is not None:
+                delay = self._retime(tx, targets, ans.delay)
         rnd = sender.loss_random
         at = self.sched.at
         ends = None if isinstance(delay, list) else tx.end
@@ -349,6 +363,22 @@ class Channel(Medium):
                 at(end, self._end_sinr_at, tx, j, rnd(), float(pers[n]), n < intended)
             else:
                 at(end, self._end_at, tx, j, bool(rnd() < pers[n]), n < intended)
+
+    def _retime(self, tx: Transmission, targets: Any, delays: Any) -> Any:
+        """A model gave its own propagation delays (nan: the straight path) for `targets`: `tx` gets its own
+        copy of the delays (the sender's geometry is shared), and its last end moves with them."""
+        dl = list(tx.dl) if isinstance(tx.dl, list) else tx.dl.copy()
+        last = tx.max_end
+        for n, j in enumerate(targets):
+            v = float(delays[n])
+            if v == v and dl[j] != INF:        # not nan, and the receiver is in range
+                dl[j] = v
+                if tx.t0 + tx.dur + v > last:
+                    last = tx.t0 + tx.dur + v
+        tx.dl = dl
+        tx.max_end = last
+        tx._arr = tx._end = None
+        return dl
 
     def _unreachable(self, sender: Modem, frame: Frame, j: int, now: float, dist: Any) -> None:
         m = self.listeners[j]

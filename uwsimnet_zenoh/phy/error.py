@@ -31,7 +31,10 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Literal
+
+from .models import DistanceModel
 
 if TYPE_CHECKING:
     import numpy as np
@@ -53,12 +56,13 @@ def _sanitise(r: float) -> float:
     return 1.0 if math.isnan(r) else min(1.0, max(0.0, r))
 
 
-class RateErrorModel:
+class RateErrorModel(DistanceModel):
     """An error rate expression of the distance ``m`` plus its unit: gives per-frame loss probabilities.
 
     Built once per modem and called once per transmitted frame with the distances to every receiver, so
     the per-call path stays in a handful of in-place numpy calls, and a constant rate (notably the
-    default ``"0"``) never evaluates anything.
+    default ``"0"``) never evaluates anything.  The channel model "expression" (phy.models): a device's
+    `rateErrorModel`, the default of a `CustomCommsDevice`.
     """
 
     __slots__ = ("_expr", "_text", "unit", "lossless", "_per_byte", "_const")
@@ -94,6 +98,14 @@ class RateErrorModel:
         self._per_byte = _BITS_PER_BYTE[unit]
         self._const = None if constant is None else _sanitise(constant)
         self.lossless = self._const == 0.0
+
+    family = "expression"
+
+    def losses(self, distances: Sequence[float], size: int) -> Sequence[float]:
+        """The channel's per-frame call; a lossless model answers without numpy (a small run never imports it)."""
+        if self.lossless:
+            return [0.0] * len(distances)
+        return self.per(distances, size)
 
     @property
     def expr(self) -> Expr:

@@ -41,9 +41,13 @@ class DeviceParams(Protocol):
 
 
 class LossModel(Protocol):
-    """What the channel asks a transmitter's loss model: the packet error rate at each distance."""
+    """What the channel asks a transmitter's channel model (phy.models.ChannelModel): one answer for all the
+    receivers of a transmission."""
 
-    def per(self, distance_m: Any, size_bytes: int) -> Any: ...
+    @property
+    def by_distance(self) -> bool: ...
+    def losses(self, distances: Any, size: int) -> Any: ...
+    def answer(self, q: Any) -> Any: ...
 
 
 class SinrLossModel(LossModel, Protocol):

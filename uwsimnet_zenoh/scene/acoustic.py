@@ -36,7 +36,7 @@ class AcousticVocabulary(XmlReader):
         k = self.kids(el, single=(
             "id", "minPropTime", "bandwidth", "temperature", "salinity", "noiseLvl", "depth", "ph", "spreading",
             "absorption", "shipping", "wind", "noisePsd", "soundSpeed", "interference", "sinrThreshold",
-            "capture", "acquireThreshold"),
+            "capture", "acquireThreshold", "channelModel"),
             ignore=_CHANNEL_IGNORED)
         f = _Fields()
         id_el = self.need(k, "id")
@@ -76,6 +76,9 @@ class AcousticVocabulary(XmlReader):
         if (e := k.get("acquireThreshold")) is not None and a.values.get("capture") != "first":
             self.fail(e, "acquireThreshold: needs <capture>first</capture>")
         f.set("acoustic", self.build(AcousticChannelSpec, el, a), "AcousticCommsChannel", el)
+        if (e := k.get("channelModel")) is not None:
+            f.set("model", self.channel_model(e), "channelModel", e)
+            self.modelled.add(cid)
         return self.build(Channel, el, f), id_el
 
     def acoustic_device(self, el: _El) -> tuple[Device, dict[str, _El]] | None:

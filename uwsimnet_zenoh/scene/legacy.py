@@ -11,6 +11,7 @@ from .model import (
     Device,
     ErrorModel,
     MacSpec,
+    ModelSpec,
     Simulation,
     Tracing,
     Vehicle,
@@ -77,7 +78,8 @@ class LegacyVocabulary(XmlReader):
         return self.build(Simulation, el, f)
 
     def channel(self, el: _El) -> tuple[Channel, _El]:
-        k = self.kids(el, single=("id", "propTimeIncPerMeter", "minPropTime"), ignore=_CHANNEL_IGNORED)
+        k = self.kids(el, single=("id", "propTimeIncPerMeter", "minPropTime", "channelModel"),
+                      ignore=_CHANNEL_IGNORED)
         f = _Fields()
         id_el = self.need(k, "id")
         cid, raw = self.integer(id_el)
@@ -86,18 +88,25 @@ class LegacyVocabulary(XmlReader):
             if (e := k.get(tag)) is not None:
                 _, raw = self.number(e)
                 f.set(field, _ms_to_s(raw), tag, e, raw)
+        if (e := k.get("channelModel")) is not None:
+            f.set("model", self.channel_model(e), "channelModel", e)
+            self.modelled.add(cid)
         return self.build(Channel, el, f), id_el
 
     # --- vehicles ------------------------------------------------------------------------------------
 
     def vehicle(self, el: _El) -> tuple[Vehicle, _El, list[dict[str, _El]]]:
-        k = self.kids(el, single=("name", "position", "trajectory", "poseSource", "poseRate"),
+        k = self.kids(el, single=("name", "position", "geoPosition", "trajectory", "poseSource", "poseRate"),
                       repeat=("CustomCommsDevice", "AcousticCommsDevice"), ignore=_VEHICLE_IGNORED)
         f = _Fields()
         name_el = self.need(k, "name")
         f.set("name", self.string(name_el), "name", name_el)
         if (e := k.get("position")) is not None:
             f.set("position", self.position(e), "position", e)
+        if (e := k.get("geoPosition")) is not None:
+            if "position" in f.values:
+                self.fail(e, "geoPosition: give either <position> or <geoPosition>")
+            f.set("position", self.geo_position(e), "geoPosition", e)  # type: ignore[attr-defined]
         if (e := k.get("trajectory")) is not None:
             wps = self.trajectory(e)
             f.set("trajectory", wps, "trajectory", e)
@@ -202,7 +211,7 @@ class LegacyVocabulary(XmlReader):
             self.fail(k.get("minDistance"), f"minDistance {f.where['min_distance'].raw} is larger than"
                                             f" maxDistance {f.where['max_distance'].raw}")
 
-        error = self.error_model(el, k)
+        error = self.error_model(el, k, f.values["tx_channel"] in self.modelled)
         if error is not None:
             f.set("error", error, "rateErrorModel", el)
         if (e := k.get("macProtocol")) is not None:
@@ -259,7 +268,9 @@ class LegacyVocabulary(XmlReader):
                 _, raw = self.number(e, f"{el.tag}/{tag}")
                 f.set(field, _ms_to_s(raw), f"{el.tag}/{tag}", e, raw)
 
-    def error_model(self, dev: _El, k: _Kids) -> ErrorModel | None:
+    def error_model(self, dev: _El, k: _Kids, modelled: bool = False) -> ErrorModel | None:
+        """The device's rateErrorModel (or its legacy form); none given: no loss, said in a warning unless
+        its channel names a `<channelModel>` (`modelled`), which the device's rate would not reach."""
         rem = k.get("rateErrorModel")
         legacy = [e for e in (k.get("minPktErrRatio"), k.get("pktErrRatioIncPerMeter")) if e is not None]
         if rem is not None and legacy:
@@ -287,7 +298,8 @@ class LegacyVocabulary(XmlReader):
             f = _Fields()
             f.values.update(unit="packet", expr=expr)
             return self.build(ErrorModel, legacy[0], f)
-        self.warn(dev, NO_ERROR_MODEL_WARNING)
+        if not modelled:
+            self.warn(dev, NO_ERROR_MODEL_WARNING)
         return None
 
     def check_expr(self, el: _El, expr: str) -> None:
@@ -324,3 +336,32 @@ class LegacyVocabulary(XmlReader):
         f.values["params"] = params
         return self.build(MacSpec, el, f)
 
+    def channel_model(self, el: _El) -> ModelSpec:
+        """`<channelModel>`: `<name>` and the model's parameters, one element each (docs/channel-models.md).
+        The name must resolve here; the parameters are the model's to check when it is built."""
+        from ..phy.registry import resolve as resolve_model
+
+        self._no_attributes(el)
+        name_el: _El | None = None
+        params: dict[str, str] = {}
+        seen: dict[str, _El] = {}
+        for child in self._nodes(el):
+            if child.tag in seen:
+                self.fail(child, f"duplicate <{child.tag}> in <channelModel> (first at line"
+                                 f" {seen[child.tag].sourceline})")
+            seen[child.tag] = child
+            if child.tag == "name":
+                name_el = child
+            else:
+                params[child.tag] = self.text(child)
+        if name_el is None or not self.text(name_el):
+            self.fail(el, "channelModel: missing <name>")
+        name = self.text(name_el)
+        try:
+            resolve_model(name)
+        except ValueError as e:
+            self.fail(name_el, f"channelModel/name: {e}")
+        f = _Fields()
+        f.set("name", name, "channelModel/name", name_el)
+        f.values["params"] = params
+        return self.build(ModelSpec, el, f)

@@ -21,6 +21,7 @@ from lxml import etree
 from pydantic import ValidationError
 
 from .acoustic import AcousticVocabulary
+from .environment import EnvironmentVocabulary
 from .legacy import LegacyVocabulary
 from .model import (
     Channel,
@@ -75,7 +76,7 @@ def load_scene_text(text: str | bytes, source: str = "<string>", on_warning: War
 
 
 
-class _Reader(LegacyVocabulary, AcousticVocabulary, NativeVocabulary):
+class _Reader(LegacyVocabulary, AcousticVocabulary, NativeVocabulary, EnvironmentVocabulary):
     """The whole document: the root, its sections in order, cross-checks."""
 
     # --- the document --------------------------------------------------------------------------------
@@ -110,11 +111,13 @@ class _Reader(LegacyVocabulary, AcousticVocabulary, NativeVocabulary):
         return scene
 
     def scene(self, root: _El, name: str) -> Scene:
-        k = self.kids(root, single=("netTracingScript", "simulation"),
+        k = self.kids(root, single=("netTracingScript", "simulation", "environment"),
                       repeat=("CustomCommsChannel", "AcousticCommsChannel", "vehicle", "flow"), ignore=_TOP_IGNORED)
         tracing_el, simulation_el = k.get("netTracingScript"), k.get("simulation")
         tracing = self.tracing(tracing_el) if tracing_el is not None else Tracing()
         simulation = self.simulation(simulation_el) if simulation_el is not None else Simulation()
+        env_el = k.get("environment")
+        environment = self.environment(env_el) if env_el is not None else None
 
         channels: list[Channel] = []
         channel_line: dict[int, int] = {}
@@ -176,6 +179,6 @@ class _Reader(LegacyVocabulary, AcousticVocabulary, NativeVocabulary):
         fields = _Fields()
         fields.values.update(name=simulation.world or name, source=self.source, simulation=simulation,
                              tracing=tracing, channels=tuple(channels), vehicles=tuple(vehicles),
-                             flows=tuple(flows))
+                             flows=tuple(flows), environment=environment)
         return self.build(Scene, root, fields)
 

@@ -16,6 +16,7 @@ from ..kernel.frame import BROADCAST
 
 if TYPE_CHECKING:
     from ..phy.acoustic import AcousticChannelParams
+    from ..phy.ocean import Bathymetry, SoundSpeedProfile
 # phy.acoustic is imported by the acoustic models' methods: a scene without acoustic devices never needs it
 # (start-up time)
 
@@ -39,6 +40,14 @@ class MacSpec(_Model):
     """`macProtocol`: a name from the registry (case-insensitive) or `module:Class`, with its parameters."""
 
     name: str = "none"
+    params: dict[str, str] = Field(default_factory=dict)
+
+
+class ModelSpec(_Model):
+    """`channelModel` of a channel: a channel model by name (built-in, entry point of group
+    `uwsimnet.channel_models`, or `module:Class`) with its parameters (docs/channel-models.md)."""
+
+    name: str
     params: dict[str, str] = Field(default_factory=dict)
 
 
@@ -164,6 +173,8 @@ class Channel(_Model):
     acoustic: AcousticChannelSpec | None = None
     """Set for an `AcousticCommsChannel`: its water, noise and interference rule.  Unless given explicitly,
     prop_s_per_m is then 1 / sound speed (Mackenzie or the fixed soundSpeed)."""
+    model: ModelSpec | None = None
+    """`<channelModel>`: the model every transmitter on this channel uses; None: each device's default."""
 
     @model_validator(mode="before")
     @classmethod
@@ -242,6 +253,11 @@ class Device(_Model):
     def half_duplex(self) -> bool:
         return self.tx_channel == self.rx_channel
 
+    @property
+    def default_model(self) -> str:
+        """The channel model the device uses where its channel names none (phy.registry)."""
+        return "expression" if self.acoustic is None else "acoustic"
+
 
 class Waypoint(_Model):
     t: float = Field(ge=0)
@@ -294,6 +310,39 @@ class Simulation(_Model):
     world: str | None = None
 
 
+class Environment(_Model):
+    """`<environment>`: the water of the scene (docs/ocean.md): origin, sound-speed profile, bathymetry, seabed."""
+
+    origin: tuple[float, float] | None = None
+    """(latitude, longitude), degrees WGS-84, of the local frame's origin (x east, y north, z up)."""
+    profile: tuple[tuple[float, float], ...] = ((0.0, 1500.0),)
+    """Sound speed: (depth m, speed m/s) points, linear in between."""
+    profile_name: str = "isovelocity"
+    bathymetry: Literal["flat", "slope", "grid"] = "flat"
+    depth_m: float = Field(default=100.0, gt=0)
+    """Water depth at the origin (flat, slope), m."""
+    gradient: tuple[float, float] = (0.0, 0.0)
+    """slope: depth change per metre east and north."""
+    grid_file: str | None = None
+    seabed_speed_mps: float = Field(default=1600.0, gt=0)
+    seabed_density: float = Field(default=1.8, gt=0)
+    """g/cm^3"""
+    seabed_attenuation: float = Field(default=0.8, ge=0)
+    """dB per wavelength"""
+
+    def sound_speed(self) -> SoundSpeedProfile:
+        from ..phy.ocean import SoundSpeedProfile  # noqa: PLC0415 - see the imports
+
+        return SoundSpeedProfile(self.profile, self.profile_name)
+
+    def seafloor(self) -> Bathymetry:
+        from ..phy.ocean import Bathymetry  # noqa: PLC0415 - see the imports
+
+        if self.bathymetry == "grid" and self.grid_file is not None:
+            return Bathymetry.read_grid(self.grid_file)
+        return Bathymetry(self.bathymetry, self.depth_m, self.gradient)
+
+
 class Scene(_Model):
     name: str = "scene"
     source: str = "<memory>"
@@ -302,6 +351,7 @@ class Scene(_Model):
     channels: tuple[Channel, ...] = ()
     vehicles: tuple[Vehicle, ...] = ()
     flows: tuple[Flow, ...] = ()
+    environment: Environment | None = None
 
     @property
     def world(self) -> str:

@@ -172,6 +172,8 @@ class XmlReader:
         self.on_warning = on_warning or _stderr
         self._warnings: list[tuple[int, int, str]] = []
         self.disabled: dict[str, int] = {}
+        self.modelled: set[int] = set()
+        """Ids of the channels that name a `<channelModel>` (their devices' rateErrorModel is not used)."""
 
     # --- reporting -----------------------------------------------------------------------------------
 

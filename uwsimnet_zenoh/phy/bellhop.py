@@ -1,0 +1,318 @@
+"""The channel model "bellhop" (docs/ocean.md): ray-traced transmission loss and first arrivals from Bellhop
+(Porter's Acoustics Toolbox; GPL-3, so it is run as a program and never imported or shipped), computed once on
+a grid per (environment, frequency, source depths), cached on disk by content hash, interpolated per frame.
+
+Per receiver: horizontal range r and the two depths -> TL (incoherent, Bellhop run type 'I') and the first
+significant arrival (run type 'A': the earliest arrival within 20 dB of the strongest) by trilinear
+interpolation in (source depth, receiver depth, range); then, with the device's acoustic mode (its
+`AcousticLink`: SL, NL, DI, B/R, modulation), Eb/N0 = SL - TL - NL + DI + 10 log10(B/R) - implementation loss,
+BER by the modulation, PER = 1 - (1 - BER)^(8 L).  Delay spread as a loss (`<isi>off</isi>` to leave it out):
+the fraction f of the arrivals' energy that comes more than one bit after the first arrival is interference,
+SINR = (1 - f) SNR / (1 + f SNR), and Eb/N0 = SINR B/R (less the implementation loss).  The arrival is the
+delay.  A receiver with no arrival, or beyond the grid, loses the frame.  The environment is range-independent
+here: the depth below the origin.
+The grid's source depths are `sources` (or every `sourceStep` m); a sender far from all of them whose receiver
+is nearer one swaps the two ends (reciprocity: the same TL and travel time both ways).
+
+The grid is computed when the network is built (never per frame): the one place below the sans-IO line that
+starts a program, and only when the cache has no grid for this content.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import shutil
+import struct
+import subprocess
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .acoustic import MODULATIONS, AcousticLink
+from .models import Answer, ChannelModel, ModelContext, Query
+
+GRID_VERSION = "uwsimnet-bellhop-grid-2"
+LATE_S = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1)
+"""Delays after the first arrival (s) at which the grid keeps the fraction of arrival energy still to come."""
+HOWTO = ("Bellhop not found: run `make bellhop` (installs the aubellhop wheel's binary into .tools/bellhop),"
+         " or name the program in <program> or in UWSIMNET_BELLHOP")
+
+
+def find_program(explicit: str | None = None) -> str | None:
+    """The Bellhop binary: `explicit`, $UWSIMNET_BELLHOP, `bellhop.exe`/`bellhop` on PATH, or `make bellhop`'s."""
+    for cand in (explicit, os.environ.get("UWSIMNET_BELLHOP")):
+        if cand:
+            return cand if os.access(cand, os.X_OK) else None
+    for name in ("bellhop.exe", "bellhop"):
+        if (p := shutil.which(name)) is not None:
+            return p
+    root = Path(__file__).resolve().parents[2] / ".tools" / "bellhop"
+    found = sorted(root.glob("lib/python3*/site-packages/aubellhop/bin/bellhop.exe"))
+    return str(found[0]) if found else None
+
+
+def env_text(freq_hz: float, profile: list[tuple[float, float]], bottom_m: float, seabed: tuple[float, float, float],
+             sds: list[float], rds: list[float], rrs_m: list[float], run: str, beams: int = 0) -> str:
+    """A Bellhop .env: one fluid layer (C-linear profile, vacuum surface) over an acousto-elastic half-space
+    (sound speed m/s, density g/cm^3, attenuation dB/wavelength); sources, receivers and ranges as given."""
+    pts = [(d, c) for d, c in profile if d < bottom_m]
+    pts.append((bottom_m, _speed_at(profile, bottom_m)))
+    cp, rho, att = seabed
+    lines = ["'uwsimnet'", f"{freq_hz:.6f}", "1", "'CVW'", f"0 0.0 {bottom_m:.6f}"]
+    lines += [f"{d:.6f} {c:.6f} /" for d, c in pts]
+    lines += ["'A' 0.0", f"{bottom_m:.6f} {cp:.6f} 0.0 {rho:.6f} {att:.6f} /"]
+    for vals, scale in ((sds, 1.0), (rds, 1.0), (rrs_m, 1e-3)):
+        lines += [str(len(vals)), " ".join(f"{v * scale:.6f}" for v in vals) + " /"]
+    lines += [f"'{run}'", str(beams), "-89.0 89.0 /", f"0.0 {bottom_m * 1.01:.6f} {rrs_m[-1] * 1.01e-3:.6f}"]
+    return "\n".join(lines) + "\n"
+
+
+def _speed_at(profile: list[tuple[float, float]], z: float) -> float:
+    ds, cs = [d for d, _ in profile], [c for _, c in profile]
+    return float(np.interp(z, ds, cs))
+
+
+def read_shd(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A Bellhop .shd (the Acoustics Toolbox's binary shade file): records of 4*recl bytes; record 2 holds
+    the counts, 7-9 the source depths, receiver depths and ranges, 10 on the pressure per (source, depth)."""
+    recl = struct.unpack_from("<i", data, 0)[0]
+    rec = 4 * recl
+    _nfreq, ntheta, _nsx, _nsy, nsd, nrd, nrr = struct.unpack_from("<7i", data, 2 * rec)
+    if ntheta != 1:
+        raise ValueError("a .shd with more than one bearing")
+    sd = np.frombuffer(data, "<f4", nsd, 7 * rec).astype(float)
+    rd = np.frombuffer(data, "<f4", nrd, 8 * rec).astype(float)
+    rr = np.frombuffer(data, "<f8" if _rr_is_double(data, rec, nrr) else "<f4", nrr, 9 * rec).astype(float)
+    p = np.empty((nsd, nrd, nrr), dtype=complex)
+    for i in range(nsd):
+        for j in range(nrd):
+            v = np.frombuffer(data, "<f4", 2 * nrr, (10 + i * nrd + j) * rec).astype(float)
+            p[i, j] = v[0::2] + 1j * v[1::2]
+    return sd, rd, rr, p
+
+
+def _rr_is_double(data: bytes, rec: int, nrr: int) -> bool:
+    """Ranges are written as doubles by recent Bellhop and singles by old ones: doubles read as increasing."""
+    if nrr < 2 or 9 * rec + 8 * nrr > len(data):
+        return False
+    v = np.frombuffer(data, "<f8", nrr, 9 * rec)
+    return bool(np.all(np.isfinite(v)) and np.all(np.diff(v) > 0) and v[-1] < 1e8)
+
+
+def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per (source depth, receiver depth, range) of a Bellhop ascii .arr file ('2D'): the first significant
+    arrival (earliest within `window_db` of the strongest; nan: none), the rms delay spread (s), and the
+    fraction of the arrivals' energy (sum |A|^2) that comes later than first + each of LATE_S."""
+    tok = text.split()
+    if not tok or "2D" not in tok[0]:
+        raise ValueError("not a 2D Bellhop arrivals file")
+    pos = 2                                       # '2D', freq
+    counts = []
+    for _ in range(3):
+        n = int(tok[pos])
+        counts.append(n)
+        pos += 1 + n
+    nsd, nrd, nrr = counts
+    first = np.full((nsd, nrd, nrr), np.nan)
+    spread = np.full((nsd, nrd, nrr), np.nan)
+    late = np.zeros((nsd, nrd, nrr, len(LATE_S)))
+    offsets = np.array(LATE_S)
+    for i in range(nsd):
+        pos += 1                                  # the source's largest count
+        for j in range(nrd):
+            for k in range(nrr):
+                n = int(tok[pos])
+                pos += 1
+                if n == 0:
+                    continue
+                a = np.array(tok[pos:pos + 8 * n], dtype=float).reshape(n, 8)
+                pos += 8 * n
+                amp, delay = np.abs(a[:, 0]), a[:, 2]
+                strong = amp >= amp.max() * 10 ** (-window_db / 20)
+                first[i, j, k] = delay[strong].min()
+                w = amp ** 2
+                mean = float(np.sum(w * delay) / np.sum(w))
+                spread[i, j, k] = math.sqrt(max(0.0, float(np.sum(w * (delay - mean) ** 2) / np.sum(w))))
+                after = delay[None, :] > first[i, j, k] + offsets[:, None]
+                late[i, j, k] = (after * w[None, :]).sum(axis=1) / w.sum()
+    return first, spread, late
+
+
+class Grid:
+    """TL (dB) and first-arrival delay (s) on (source depth, receiver depth, range) axes; trilinear lookup."""
+
+    def __init__(self, sd: np.ndarray, rd: np.ndarray, rr: np.ndarray, tl: np.ndarray, delay: np.ndarray,
+                 spread: np.ndarray, late: np.ndarray) -> None:
+        self.sd, self.rd, self.rr = (np.asarray(a, dtype=float) for a in (sd, rd, rr))
+        self.tl, self.delay, self.spread, self.late = (np.asarray(a, dtype=float) for a in (tl, delay, spread, late))
+
+    def save(self, path: str | Path) -> None:
+        tmp = f"{path}.tmp{os.getpid()}.npz"
+        np.savez_compressed(tmp, sd=self.sd, rd=self.rd, rr=self.rr, tl=self.tl, delay=self.delay,
+                            spread=self.spread, late=self.late)
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Grid:
+        with np.load(path) as z:
+            return cls(z["sd"], z["rd"], z["rr"], z["tl"], z["delay"], z["spread"], z["late"])
+
+    def late_fraction(self, zs: Any, zr: Any, r: Any, after_s: float) -> np.ndarray:
+        """The fraction of the arrivals' energy later than first + after_s (log-linear between LATE_S)."""
+        zs, zr, r = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (zs, zr, r))
+        x = math.log(min(max(after_s, LATE_S[0]), LATE_S[-1]))
+        xs = [math.log(v) for v in LATE_S]
+        m = min(max(int(np.searchsorted(xs, x, side="right")) - 1, 0), len(xs) - 2)
+        w = (x - xs[m]) / (xs[m + 1] - xs[m])
+        a = _trilinear(self.sd, self.rd, self.rr, self.late[..., m], zs, zr, r)
+        b = _trilinear(self.sd, self.rd, self.rr, self.late[..., m + 1], zs, zr, r)
+        return (1 - w) * a + w * b
+
+    def lookup(self, zs: Any, zr: Any, r: Any) -> tuple[np.ndarray, np.ndarray]:
+        """TL and delay at source depths zs, receiver depths zr, ranges r (arrays): nan beyond the ranges."""
+        zs, zr, r = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (zs, zr, r))
+        out_tl = _trilinear(self.sd, self.rd, self.rr, self.tl, zs, zr, r)
+        out_dl = _trilinear(self.sd, self.rd, self.rr, self.delay, zs, zr, r)
+        beyond = (r > self.rr[-1]) | (r < self.rr[0])
+        out_tl[beyond] = np.nan
+        out_dl[beyond] = np.nan
+        return out_tl, out_dl
+
+
+def _axis(ax: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    if len(ax) == 1:
+        return np.zeros(len(q), dtype=int), np.zeros(len(q))
+    q = np.clip(q, ax[0], ax[-1])
+    i = np.clip(np.searchsorted(ax, q, side="right") - 1, 0, len(ax) - 2)
+    return i, (q - ax[i]) / (ax[i + 1] - ax[i])
+
+
+def _trilinear(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarray, q0: np.ndarray, q1: np.ndarray,
+               q2: np.ndarray) -> np.ndarray:
+    (i, f), (j, g), (k, h) = _axis(a0, q0), _axis(a1, q1), _axis(a2, q2)
+    i1 = np.minimum(i + 1, len(a0) - 1)
+    j1 = np.minimum(j + 1, len(a1) - 1)
+    k1 = np.minimum(k + 1, len(a2) - 1)
+    out = np.zeros(len(q0))
+    for ii, wi in ((i, 1 - f), (i1, f)):
+        for jj, wj in ((j, 1 - g), (j1, g)):
+            for kk, wk in ((k, 1 - h), (k1, h)):
+                out += wi * wj * wk * v[ii, jj, kk]
+    return out
+
+
+def run_bellhop(program: str, env: str, want: str, workdir: str) -> bytes:
+    """Run Bellhop on one .env text in `workdir`; the bytes of its output file `want` ('shd' or 'arr')."""
+    base = os.path.join(workdir, "run")
+    Path(base + ".env").write_text(env)
+    done = subprocess.run([program, base], cwd=workdir, capture_output=True, text=True, timeout=3600)
+    out = Path(f"{base}.{want}")
+    if done.returncode != 0 or not out.exists():
+        prt = Path(base + ".prt")
+        tail = prt.read_text(errors="replace").strip().splitlines()[-3:] if prt.exists() else [done.stderr.strip()]
+        raise ValueError(f"Bellhop failed ({program}): {' | '.join(tail)}")
+    return out.read_bytes()
+
+
+def compute_grid(program: str, freq_hz: float, profile: list[tuple[float, float]], bottom_m: float,
+                 seabed: tuple[float, float, float], sds: list[float], rds: list[float], rrs_m: list[float],
+                 workers: int = 2) -> Grid:
+    """The grid from Bellhop: one TL run ('I') and one arrivals run ('A') per source depth, in parallel."""
+    def one(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        with tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d1, \
+                tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d2:
+            shd = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "I"), "shd", d1)
+            arr = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "A"), "arr", d2)
+        _, _, _, p = read_shd(shd)
+        with np.errstate(divide="ignore"):
+            tl = -20.0 * np.log10(np.abs(p[0]))
+        first, spread, late = read_arrivals(arr.decode())
+        return tl, first[0], spread[0], late[0]
+
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        parts = list(pool.map(one, sds))
+    return Grid(np.array(sds), np.array(rds), np.array(rrs_m), *(np.stack([p[n] for p in parts]) for n in range(4)))
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("UWSIMNET_CACHE") or Path.home() / ".cache" / "uwsimnet") / "bellhop"
+
+
+class BellhopModel(ChannelModel):
+    """Ray-traced acoustics for an AcousticCommsDevice in the scene's <environment> (module docstring)."""
+
+    family = "bellhop"
+    params_known = ("program", "workers", "isi")
+    """Read only when the grid is not cached yet."""
+
+    def __init__(self, params: Any, ctx: ModelContext) -> None:
+        env = ctx.environment
+        if env is None:
+            raise ValueError("needs an <environment> (sound speed, bathymetry, seabed)")
+        base = ctx.builtin("acoustic")
+        self.link = base if isinstance(base, AcousticLink) else base.link     # a FixedBerLink's physics
+        m = self.link.modem
+        self.freq_hz = float(m.carrier_khz) * 1e3
+        self.snr_const = self.link.sl_db - self.link.nl_db + self.link.di_db      # SNR = this - TL, dB
+        self.to_ebn0 = 10 ** (0.1 * (self.link.bw_gain_db - m.implementation_loss_db))   # B/R / impl. loss
+        self.bit_s = 1.0 / float(m.bitrate_bps)
+        self.isi = params.get("isi", "on") != "off"
+        self.ber = MODULATIONS[m.modulation]
+        bottom = float(env.seafloor().depth(0.0, 0.0))
+        max_range = float(params.get("maxRange", "5000"))
+        r_step = float(params.get("rangeStep", "25"))
+        z_step = float(params.get("depthStep", "2"))
+        z_max = min(float(params.get("maxDepth", str(bottom))), bottom)
+        s_step = float(params.get("sourceStep", "5"))
+        if not (max_range > 0 and r_step > 0 and z_step > 0 and s_step > 0 and z_max > 0):
+            raise ValueError("maxRange, rangeStep, depthStep, maxDepth and sourceStep must be > 0")
+        rrs = [float(x) for x in np.arange(r_step, max_range + r_step / 2, r_step)]
+        rds = [float(x) for x in np.arange(0.0, z_max + z_step / 2, z_step)]
+        rds = sorted({min(max(z, 0.5), bottom - 0.5) for z in rds})
+        given = params.get("sources", "").replace(",", " ").split()
+        src = [float(x) for x in given] if given else [float(x) for x in np.arange(0.0, z_max + s_step / 2, s_step)]
+        sds = sorted({min(max(z, 0.5), bottom - 0.5) for z in src})
+        profile = [tuple(p) for p in env.profile]
+        seabed = (env.seabed_speed_mps, env.seabed_density, env.seabed_attenuation)
+        key = hashlib.sha256(repr((GRID_VERSION, self.freq_hz, profile, bottom, seabed, sds, rds, rrs)).encode())
+        where = Path(params.get("cache", "") or cache_dir())
+        self.path = where / f"{key.hexdigest()[:32]}.npz"
+        if self.path.exists():
+            self.grid = Grid.load(self.path)
+            return
+        program = find_program(params.get("program"))
+        if program is None:
+            raise ValueError(HOWTO)
+        self.grid = compute_grid(program, self.freq_hz, profile, bottom, seabed, sds, rds, rrs,
+                                 workers=int(params.get("workers", str(os.cpu_count() or 1))))
+        where.mkdir(parents=True, exist_ok=True)
+        self.grid.save(self.path)
+
+    def answer(self, q: Query) -> Answer:
+        tx = q.sender
+        rxs = q.receivers
+        zs = np.full(len(rxs), -tx.position[2])
+        zr = np.array([-r.position[2] for r in rxs])
+        rr = np.array([math.hypot(r.position[0] - tx.position[0], r.position[1] - tx.position[1]) for r in rxs])
+        sd = self.grid.sd                       # reciprocity: a sender off the grid's source depths, to a
+        off = np.minimum(np.abs(zs[:, None] - sd).min(axis=1), 1e9)    # receiver on one, swaps the ends
+        swap = off > np.abs(zr[:, None] - sd).min(axis=1)
+        zs, zr = np.where(swap, zr, zs), np.where(swap, zs, zr)
+        tl, delay = self.grid.lookup(zs, zr, rr)
+        late = self.grid.late_fraction(zs, zr, rr, self.bit_s) if self.isi else np.zeros(len(tl))
+        per = []
+        for t, f in zip(tl, late, strict=True):
+            if not math.isfinite(t):
+                per.append(1.0)
+                continue
+            snr = 10.0 ** (0.1 * min(self.snr_const - float(t), 3000.0))
+            f = min(max(float(f), 0.0), 1.0)
+            ebn0 = (1.0 - f) * snr / (1.0 + f * snr) * self.to_ebn0     # ISI: energy a bit late is interference
+            b = float(self.ber(ebn0))
+            per.append(1.0 if b >= 1.0 else -math.expm1(8.0 * q.size * math.log1p(-b)))
+        return Answer(per, [float(d) for d in delay], [float(self.link.sl_db - t) for t in tl])
