@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import socket
+import subprocess
 import time
 
 import pytest
@@ -235,3 +236,14 @@ def test_bad_clients_get_one_log_line_and_the_others_are_served(net):
                     ("for agent 'uwlink'", 1), ("unknown action 'teleport'", 1), ("does not read", 1)):
         assert sum(what in x for x in gw.err) == n, (what, gw.err[-20:])
     assert net["broker"].p.poll() is None and gw.p.poll() is None
+
+
+def test_bad_command_lines_are_one_line_errors(net):
+    if net["kind"] != "sim":
+        pytest.skip("the command line is the same in both worlds")
+    busy = net["ports"]["A"]
+    for argv, want in ((["--id=nosuch-m", "--port", "0"], "nosuch-m: no simulator or driver serves this modem"),
+                       (["--id", "a-m", "--port", str(busy)], f"bridge unet: cannot listen on 127.0.0.1:{busy}")):
+        p = subprocess.run([*UWSIMNET, "bridge", "unet", *argv, "--world", WORLD, "--connect",
+                            net["broker"].endpoint], capture_output=True, text=True, timeout=60)
+        assert p.returncode == 2 and p.stderr.strip().startswith(want) and len(p.stderr.splitlines()) == 1, p

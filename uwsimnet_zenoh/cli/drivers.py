@@ -312,10 +312,13 @@ def cmd_bridge_unet(args: argparse.Namespace) -> int:
 
     _log()
     ids = tuple(dict.fromkeys(args.id))
-    _precheck(args, "modem", ids)
+    uses = ("modem", "info", "control")          # + pose/<vehicle> when allowed (else the state's positions)
+    for program in uses:
+        _precheck(args, program, ids)
     with _session(args) as s:
         world = _world(s, args)
-        check_access(args, "modem", world, ids)
+        for program in uses:
+            check_access(args, program, world, ids)
         with World(world, session=s) as w, contextlib.ExitStack() as stack:
             for i, dev in enumerate(ids):
                 port = args.port + i if args.port else 0
