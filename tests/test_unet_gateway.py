@@ -12,9 +12,12 @@ serves in the HIL case; its hardware is the emulated b-m.
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import socket
 import subprocess
 import time
+from pathlib import Path
 
 import pytest
 
@@ -247,3 +250,25 @@ def test_bad_command_lines_are_one_line_errors(net):
         p = subprocess.run([*UWSIMNET, "bridge", "unet", *argv, "--world", WORLD, "--connect",
                             net["broker"].endpoint], capture_output=True, text=True, timeout=60)
         assert p.returncode == 2 and p.stderr.strip().startswith(want) and len(p.stderr.splitlines()) == 1, p
+
+
+def test_fjage_js_client(net, tmp_path):
+    """fjåge's JavaScript gateway (npm `fjage`, what unet.js is built on) in Node: directory, parameters,
+    a DatagramReq A -> B.  Needs node and FJAGE_JS_DIR, a directory where `npm install fjage@2.3.1` ran."""
+    js = os.environ.get("FJAGE_JS_DIR")
+    if net["kind"] != "sim" or shutil.which("node") is None or not js or not Path(js, "node_modules/fjage").is_dir():
+        pytest.skip("set FJAGE_JS_DIR to a directory with node_modules/fjage (npm install fjage@2.3.1), sim only")
+    (tmp_path / "node_modules").symlink_to(Path(js, "node_modules").resolve())
+    script = tmp_path / "unet_fjage_js.mjs"
+    script.write_text((Path(__file__).parent / "unet_fjage_js.mjs").read_text())
+    p = subprocess.run(["node", str(script), str(net["ports"]["A"]), str(net["ports"]["B"]), "31"],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    assert out["node"] == "node" and out["address"] == 232 and out["location"] == [0, 0, 0] and out["nodeName"] == "A"
+    assert out["MTU"] == 2047 and out["dataRate2"] == BITRATE and out["agents"] == ["phy"] and out["contains"]
+    assert out["agree"] == "AGREE"
+    ntf = out["ntf"]
+    assert ntf["from"] == 232 and ntf["to"] == 31 and ntf["protocol"] == 32 and ntf["data"] == [1, 2, 3, 200]
+    air, _ = modelled_delay(4, "A", "B")
+    assert abs(ntf["dt_us"] / 1e6 - air) < 0.005
