@@ -272,3 +272,46 @@ def test_fjage_js_client(net, tmp_path):
     assert ntf["from"] == 232 and ntf["to"] == 31 and ntf["protocol"] == 32 and ntf["data"] == [1, 2, 3, 200]
     air, _ = modelled_delay(4, "A", "B")
     assert abs(ntf["dt_us"] / 1e6 - air) < 0.005
+
+
+def test_sockets_follow_a_hil_swap(tmp_path):
+    """B's node starts on b-hw, simulated (address 131, alone on channel 1); a real driver then takes b-hw over
+    with the emulated b-m (31) as its hardware: the node announces the new address (ParamChangeNtf), unetpy's
+    socket takes it, and datagrams to 31 reach it."""
+    scene = tmp_path / "swap.xml"
+    scene.write_text(scene_xml(world=WORLD, channels=(0, 1), vehicles=(
+        f"<vehicle><name>A</name><position>0 0 0</position>{device_xml('a-m', 232)}</vehicle>"
+        f"<vehicle><name>B</name><position>300 0 0</position>{device_xml('b-m', 31)}"
+        f"{device_xml('b-hw', 131, ch=1)}</vehicle>")))
+    started: list[Proc] = []
+    try:
+        broker = Broker(scene, tmp_path / "trace.jsonl")
+        started.append(broker)
+        gw = Proc([*UWSIMNET, "bridge", "unet", "--id", "a-m", "--id", "b-hw", "--connect", broker.endpoint])
+        started.append(gw)
+        ready = [gw.expect(f"uwsimnet: bridge unet ready for {WORLD}/{dev} ", 30) for dev in ("a-m", "b-hw")]
+        ports = [int(x.split("tcp 127.0.0.1:")[1].split()[0]) for x in ready]
+        port = free_port()
+        emu = Proc([*UWSIMNET, "emulate", "evologics", "--port", str(port), "--id", "b-m", "--connect",
+                    broker.endpoint])
+        started.append(emu)
+        emu.expect("uwsimnet: emulator evologics ready", 20)
+        with UnetSocket("127.0.0.1", ports[0]) as a, UnetSocket("127.0.0.1", ports[1]) as b:
+            assert b.getLocalAddress() == 131 and b.localAddress == 131
+            drv = Proc([*UWSIMNET, "driver", "evologics", "--host", "127.0.0.1", "--port", str(port), "--id",
+                        "b-hw", "--connect", broker.endpoint])
+            started.append(drv)
+            drv.expect("uwsimnet: driver evologics ready", 20)
+            deadline = time.time() + 20
+            while b.localAddress != 31 and time.time() < deadline:
+                time.sleep(0.05)
+            assert b.localAddress == 31 and b.getLocalAddress() == 31, (b.getLocalAddress(), gw.output())
+            b.bind(Protocol.USER)
+            b.setTimeout(5000)
+            assert a.send(b"to the hardware", to=31, protocol=Protocol.USER)
+            ntf = b.receive()
+            assert isinstance(ntf, DatagramNtf) and payload(ntf) == b"to the hardware" and ntf.from_ == 232
+        assert sum("address 131 -> 31" in x for x in gw.err) >= 1, gw.output()
+    finally:
+        errors = stop_all(started)
+        assert not errors, errors
