@@ -315,3 +315,24 @@ def test_sockets_follow_a_hil_swap(tmp_path):
     finally:
         errors = stop_all(started)
         assert not errors, errors
+
+
+def test_fjage_c_client(net, tmp_path):
+    """fjåge's C gateway (org-arl/fjage gateways/c/src) built with cc: directory, parameters, a DatagramReq
+    A -> B.  Needs FJAGE_C_SRC, that source directory (the test does not carry third-party C)."""
+    src = os.environ.get("FJAGE_C_SRC")
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if net["kind"] != "sim" or cc is None or not src or not Path(src, "fjage.c").is_file():
+        pytest.skip("set FJAGE_C_SRC to fjage's gateways/c/src (and have cc), sim only")
+    exe = tmp_path / "unet_fjage_c"
+    subprocess.run([cc, "-std=gnu99", "-O2", f"-I{src}", "-o", str(exe), str(Path(__file__).parent / "unet_fjage_c.c"),
+                    *(str(Path(src, f)) for f in ("fjage.c", "jsmn.c", "decode.c", "encode.c")), "-lm"],
+                   check=True, timeout=120)
+    p = subprocess.run([str(exe), str(net["ports"]["A"]), str(net["ports"]["B"]), "31"], capture_output=True,
+                       text=True, timeout=60)
+    assert p.returncode == 0, (p.stdout, p.stderr)
+    got = dict(kv.split("=", 1) for kv in p.stdout.split())
+    air, _ = modelled_delay(4, "A", "B")
+    assert got == {"address": "232", "nodeName": "A", "MTU": "2047", "dataRate": f"{BITRATE:.0f}", "agree": "1",
+                   "from": "232", "n": "4", "data": "1,2,3,200", "dt_us": got["dt_us"]}
+    assert abs(int(got["dt_us"]) / 1e6 - air) < 0.005

@@ -400,10 +400,15 @@ class UnetGateway:
                 values["description"] = f"{agent} of modem {self.id} (uwsimnet-zenoh)"
             elif short == "type":
                 values["type"] = TYPES[agent]
-        out: dict[str, Any] = {"index": index, "readonly": list(values)}
+        out: dict[str, Any] = {"index": index}
+        readonly = list(values)
         if values:
             first = next(iter(values))
-            out.update(param=first, value=values.pop(first), values=values)
+            value = values.pop(first)
+            if values:
+                out["values"] = values
+            out.update(param=first, value=value)
+        out["readonly"] = readonly              # last, as fjåge's ParameterRsp has it (see fj.reply)
         return fj.reply(m, "org.arl.fjage.param.ParameterRsp", "INFORM", agent, **out)
 
 
