@@ -336,3 +336,18 @@ def test_fjage_c_client(net, tmp_path):
     assert got == {"address": "232", "nodeName": "A", "MTU": "2047", "dataRate": f"{BITRATE:.0f}", "agree": "1",
                    "from": "232", "n": "4", "data": "1,2,3,200", "dt_us": got["dt_us"]}
     assert abs(int(got["dt_us"]) / 1e6 - air) < 0.005
+
+
+def test_all_modems_of_the_world(net):
+    if net["kind"] != "sim":
+        pytest.skip("once is enough")
+    gw = Proc([*UWSIMNET, "bridge", "unet", "--all", "--world", WORLD, "--connect", net["broker"].endpoint])
+    try:
+        ready = [gw.expect("uwsimnet: bridge unet ready for ", 30) for _ in range(5)]
+        devs = [x.split(f"{WORLD}/")[1].split()[0] for x in ready]
+        assert devs == ["a-m", "b-m", "b-hw", "c-m", "d-m"]
+        port = int(ready[-1].split("tcp 127.0.0.1:")[1].split()[0])
+        with UnetSocket("127.0.0.1", port) as d:
+            assert d.getLocalAddress() == 9
+    finally:
+        assert gw.stop() == 0, gw.output()
