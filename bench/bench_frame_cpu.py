@@ -29,18 +29,18 @@ except ImportError:
 from uwsimnet_zenoh.analysis import Accumulator  # noqa: E402
 from uwsimnet_zenoh.app.virtual import load_scene_file  # noqa: E402
 from uwsimnet_zenoh.engine.network import Network  # noqa: E402
-from uwsimnet_zenoh.trace.events import JsonlSink  # noqa: E402
+from uwsimnet_zenoh.trace.events import Callback, JsonlSink  # noqa: E402
 
 
 def one(path: str, mode: str) -> tuple[float, int]:
     net = Network(load_scene_file(path))
     if mode != "bare":
         acc = Accumulator(net.meta())
-        net.tracer.listen(acc.on_event)
+        net.tracer.listen(Callback(acc.on_event))
     if mode == "trace":
         sink = JsonlSink(io.BytesIO())
         sink.header(net.meta())
-        net.tracer.listen(sink.event)
+        net.tracer.listen(sink)
     old = gc.get_threshold()
     gc.set_threshold(50_000, 20, 100)          # as uwsimnet run (app.virtual._rare_gc)
     t0 = time.process_time()

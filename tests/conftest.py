@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import ast
+import functools
 import os
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -18,6 +21,43 @@ from uwsimnet_zenoh.scene.model import Channel, Device, ErrorModel, Flow, MacSpe
 # check that measures the machine's speed (the per-example deadline and "input generation is slow").
 settings.register_profile("uwsimnet", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("uwsimnet")
+
+# `pytest -m core`: the tests of the sans-IO core alone (docs/architecture.md), chosen by what a test module
+# imports, so a new test file is classified as it is written: only rooms below the sans-IO line
+# (tests/test_architecture.py's LAYERS), no Zenoh, no processes, sockets, threads or event loops, and no other
+# test module (those that share a live broker's helpers).  Seconds, not minutes: the inner loop of a core change.
+CORE_ROOMS = frozenset({"errors", "_native", "kernel", "trace", "mobility", "phy", "mac", "scene", "traffic",
+                        "engine", "analysis", "ros2"})
+NOT_CORE = frozenset({"zenoh", "uwsimnet_gli", "subprocess", "socket", "threading", "multiprocessing", "asyncio",
+                      "selectors", "http", "urllib", "dask", "distributed"})
+HELPERS = frozenset({"conftest", "metrics_reference"})     # test helpers that are themselves core
+
+
+@functools.cache
+def is_core(path: str) -> bool:
+    """Does the test module at `path` import only the core (see CORE_ROOMS)?"""
+    tree = ast.parse(Path(path).read_text(encoding="utf-8"), path)
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Import):
+            names = [a.name for a in n.names]
+        elif isinstance(n, ast.ImportFrom) and not n.level:
+            names = [n.module or ""]
+        else:
+            continue
+        for name in names:
+            top, _, rest = name.partition(".")
+            if top == "uwsimnet_zenoh":
+                if rest.split(".")[0] not in CORE_ROOMS:
+                    return False
+            elif top in NOT_CORE or (top not in HELPERS and (Path(path).parent / f"{top}.py").exists()):
+                return False
+    return True
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if is_core(str(item.path)):
+            item.add_marker(pytest.mark.core)
 
 
 def device(dev_id: str, address: int, ch: int = 0, rx: int | None = None, **kw: Any) -> Device:

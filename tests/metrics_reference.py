@@ -294,7 +294,7 @@ class Accumulator:
     `analyse()` on a trace and the online summary of `uwsimnet run` (a tracer listener, `on_event`), so
     the two give the same numbers for the same run.
 
-        acc = Accumulator(net.meta()); net.tracer.listen(acc.on_event); net.run(); a = acc.result()
+        acc = Accumulator(net.meta()); net.tracer.listen(Callback(acc.on_event)); net.run(); a = acc.result()
     """
 
     def __init__(self, meta: Mapping[str, Any] | None = None) -> None:

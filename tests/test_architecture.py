@@ -17,7 +17,7 @@ GLI = ROOT / "gli_clients" / "python" / "uwsimnet_gli"
 # (level, room): a room may import rooms of a lower level only; rooms of one level are siblings.
 LAYERS: dict[str, int] = {
     "errors": 0, "_native": 0, "kernel": 1,   # _native: the list of compiled modules and its guard (stdlib only)
-    "trace": 2, "mobility": 2,
+    "trace": 2, "mobility": 2, "formats": 2,   # formats: device formats (dccomms framings, EvoLogics AT)
     "phy": 3, "mac": 3,
     "scene": 4,
     "traffic": 5,

@@ -18,7 +18,7 @@ from uwsimnet_gli import World  # noqa: E402
 
 from uwsimnet_zenoh.bridges import posix_mq  # noqa: E402
 from uwsimnet_zenoh.bridges.mq_bridge import GliQueueClient  # noqa: E402
-from uwsimnet_zenoh.drivers import dccomms_framing as dl  # noqa: E402
+from uwsimnet_zenoh.formats import dccomms as fr  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 WORLD = "hilbridge"
@@ -79,9 +79,10 @@ def test_c_client_and_mq_client_through_the_simulator(tmp_path: Path, c_client):
                 assert any(f"tag={tag} event=delivered" in x for x in lines), lines
 
             # the dccomms application (c-m, 3) and the Python client (b-m, 2)
-            app.send(2, b"from dccomms")
+            app.send(2, b"from dccomms", seq=4_000_000_042)
             f = py.receive(timeout=WAIT)
             assert f is not None and (f.src, f.dst, f.data) == (3, 2, b"from dccomms")
+            assert f.msg == {"aseq": 4_000_000_042}         # the app's own seq (SetVirtualSeq), through the broker
             py.send(3, b"to dccomms")
             # no MAC: the app also got the C program's frames for b-m (implicit broadcast); it filters, as
             # a dccomms application does
@@ -96,7 +97,7 @@ def test_c_client_and_mq_client_through_the_simulator(tmp_path: Path, c_client):
             proc.kill()
             proc.wait(5)
         errors = stop_all(started)
-        for q in (dl.tx_queue_name(cid), dl.rx_queue_name(cid)):
+        for q in (fr.tx_queue_name(cid), fr.rx_queue_name(cid)):
             with contextlib.suppress(Exception):
                 posix_mq.MessageQueue.unlink(q)
         assert not errors, errors

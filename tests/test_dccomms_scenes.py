@@ -39,7 +39,7 @@ def hello_world(dev0: str = "", dev1: str = "", flows: str = "", third: str = ""
 def _run(text: str, until: float = 10.0) -> list[dict]:
     net = Network(load_scene_text(text, "t.xml", on_warning=lambda _w: None), seed=1, duration=until)
     recs: list[dict] = []
-    net.tracer.sinks.append(recs.append)
+    net.tracer.add(recs.append)
     net.run()
     return recs
 
@@ -49,7 +49,7 @@ FLOW = "<flow><name>f</name><src>bluerov0-dev</src><dst>2</dst><size>{size}</siz
 
 @pytest.mark.parametrize("builder, framed", [
     ("VariableLength2BPacketBuilder", 25), ("DataLinkFrameBuilderCRC16", 28), ("VariableLengthPacketBuilder", 24),
-    ("SimplePacketBuilder20crc16", 23), ("DataLinkFrameBuilderCRC32", 30), (None, 20)])
+    ("SimplePacketBuilder20crc16", 23), ("DataLinkFrameBuilderCRC32", 30), ("DcMacPacketBuilder", 26), (None, 20)])
 def test_the_framed_size_goes_on_air(builder, framed):
     text = hello_world(_device("bluerov0-dev", 1, builder=builder), _device("bluerov1-dev", 2, builder=builder),
                        FLOW.format(size=20, iv=1, x="<stop>1.5</stop>"))

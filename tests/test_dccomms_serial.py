@@ -10,10 +10,11 @@ import time
 import pytest
 from conftest import device, scene, vehicle
 
-from uwsimnet_zenoh.drivers import dccomms_framing as dl
-from uwsimnet_zenoh.drivers.emulators import SerialRadioEmulator
-from uwsimnet_zenoh.drivers.serial_radio import SerialRadioDriver, open_raw_tty, set_raw
+from uwsimnet_zenoh.drivers.dccomms.driver import SerialRadioDriver, open_raw_tty, set_raw
+from uwsimnet_zenoh.drivers.dccomms.emulator import SerialRadioEmulator
 from uwsimnet_zenoh.drivers.sim_backend import SimWorld
+from uwsimnet_zenoh.formats import dccomms as fr
+from uwsimnet_zenoh.formats import dccomms_stream as ds
 from uwsimnet_zenoh.scene.model import Channel
 
 WAIT = 5.0
@@ -26,6 +27,10 @@ def until(cond, timeout: float = WAIT, step: float = 0.01) -> bool:
             return True
         time.sleep(step)
     return cond()
+
+
+def encode_frame(dst: int, src: int, payload: bytes) -> bytes:
+    return fr.DEFAULT.encode(payload, dst=dst, src=src)
 
 
 def crc_bitwise(data: bytes) -> int:
@@ -43,99 +48,99 @@ def crc_bitwise(data: bytes) -> int:
 # framing
 # =================================================================================================
 def test_crc16_xmodem_check_value_and_agreement_with_the_bitwise_form():
-    assert dl.crc16_xmodem(b"123456789") == 0x31C3
-    assert dl.crc16_xmodem(b"") == 0
+    assert fr.crc16(b"123456789") == 0x31C3
+    assert fr.crc16(b"") == 0
     rnd = random.Random(3)
     for n in (1, 2, 7, 100, 2048):
         data = bytes(rnd.randrange(256) for _ in range(n))
-        assert dl.crc16_xmodem(data) == crc_bitwise(data)
-        assert dl.crc16_xmodem(data[n // 2:], dl.crc16_xmodem(data[:n // 2])) == crc_bitwise(data)
+        assert fr.crc16(data) == crc_bitwise(data)
+        assert fr.crc16(data[n // 2:], fr.crc16(data[:n // 2])) == crc_bitwise(data)
 
 
 def test_frame_layout():
-    f = dl.encode_frame(2, 1, b"hello")
+    f = encode_frame(2, 1, b"hello")
     body = bytes([2, 1, 0, 5]) + b"hello"
     assert f == b"\x55\x55" + body + crc_bitwise(body).to_bytes(2, "big")
     assert f.hex() == "5555020100056865" "6c6c6f" + f"{crc_bitwise(body):04x}"
-    assert dl.crc16_xmodem(f[2:]) == 0                     # dccomms' check: CRC over dst..FCS is 0
-    assert dl.DataLinkFrame.decode(f) == dl.DataLinkFrame(2, 1, b"hello")
+    assert fr.crc16(f[2:]) == 0                     # dccomms' check: CRC over dst..FCS is 0
+    p = fr.DEFAULT.parse(f)
+    assert (p.dst, p.src, p.payload, p.size) == (2, 1, b"hello", len(f))
     empty = b"\xff\x03\x00\x00"
-    assert dl.DataLinkFrame(255, 3, b"").encode() == b"\x55\x55" + empty + crc_bitwise(empty).to_bytes(2, "big")
-    big = dl.encode_frame(9, 8, bytes(2048))
-    assert len(big) == dl.MAX_FRAME and big[4:6] == b"\x08\x00"         # length big-endian
+    assert encode_frame(255, 3, b"") == b"\x55\x55" + empty + crc_bitwise(empty).to_bytes(2, "big")
+    big = encode_frame(9, 8, bytes(2048))
+    assert len(big) == fr.DEFAULT.max_frame and big[4:6] == b"\x08\x00"         # length big-endian
     with pytest.raises(ValueError):
-        dl.encode_frame(2, 1, bytes(2049))
+        encode_frame(2, 1, bytes(2049))
     with pytest.raises(ValueError):
-        dl.encode_frame(256, 1, b"")
+        encode_frame(256, 1, b"")
 
 
 @pytest.mark.parametrize("buf,why", [
-    (b"\x55\x55\x02\x01\x00", "shorter"),
-    (b"\x55\x54\x02\x01\x00\x00\x00\x00", "preamble"),
+    (b"\x55\x55\x02\x01\x00", "needs"),
     (b"\x55\x55\x02\x01\x08\x01" + bytes(2049 + 2), "exceeds"),
-    (dl.encode_frame(2, 1, b"abc") + b"x", "buffer holds"),
-    (dl.encode_frame(2, 1, b"abc")[:-1] + b"\x00", "CRC"),
+    (encode_frame(2, 1, b"abc")[:-1], "needs"),
+    (encode_frame(2, 1, b"abc")[:-1] + b"\x00", "FCS"),
 ])
-def test_strict_decoding_errors(buf, why):
-    with pytest.raises(dl.FramingError, match=why):
-        dl.DataLinkFrame.decode(buf)
+def test_parsing_errors(buf, why):
+    with pytest.raises(fr.FramingError, match=why):
+        fr.DEFAULT.parse(buf)
 
 
 def frames_of(events):
-    return [e.frame for e in events if isinstance(e, dl.FrameReceived)]
+    return [e.frame for e in events if isinstance(e, ds.FrameReceived)]
 
 
 def test_stream_decoder_bytewise_and_with_garbage_between_frames():
-    a, b, c = dl.encode_frame(2, 1, b"first"), dl.encode_frame(1, 2, b"\x55\x55 inside"), dl.encode_frame(255, 3, b"")
+    a, b, c = encode_frame(2, 1, b"first"), encode_frame(1, 2, b"\x55\x55 inside"), encode_frame(255, 3, b"")
     stream = b"noise" + a + b"\x00\x13\x37" + b + c
-    d = dl.FrameDecoder()
+    d = ds.FrameDecoder()
     events = [e for i in range(len(stream)) for e in d.feed(stream[i:i + 1])]
-    assert frames_of(events) == [dl.DataLinkFrame(2, 1, b"first"), dl.DataLinkFrame(1, 2, b"\x55\x55 inside"),
-                                 dl.DataLinkFrame(255, 3, b"")]
-    assert b"".join(e.data for e in events if isinstance(e, dl.Garbage)) == b"noise\x00\x13\x37"
+    assert frames_of(events) == [ds.Frame(2, 1, b"first"), ds.Frame(1, 2, b"\x55\x55 inside"),
+                                 ds.Frame(255, 3, b"")]
+    assert b"".join(e.data for e in events if isinstance(e, ds.Garbage)) == b"noise\x00\x13\x37"
     assert d.pending == 0 and d.counters["frames"] == 3
 
 
 def test_bad_crc_and_bad_length_are_reported_and_the_next_frame_is_found():
-    good = dl.encode_frame(2, 1, b"good")
-    bad = bytearray(dl.encode_frame(2, 1, b"xxxx"))
+    good = encode_frame(2, 1, b"good")
+    bad = bytearray(encode_frame(2, 1, b"xxxx"))
     bad[8] ^= 0x40                                          # one flipped bit in the payload
     badlen = b"\x55\x55\x02\x01\xff\xff"                    # 65535 > 2048
-    d = dl.FrameDecoder()
+    d = ds.FrameDecoder()
     events = d.feed(bytes(bad) + badlen + good)
-    assert frames_of(events) == [dl.DataLinkFrame(2, 1, b"good")]
+    assert frames_of(events) == [ds.Frame(2, 1, b"good")]
     kinds = [type(e).__name__ for e in events]
     assert "BadCrc" in kinds and "BadLength" in kinds
-    bc = next(e for e in events if isinstance(e, dl.BadCrc))
+    bc = next(e for e in events if isinstance(e, ds.BadCrc))
     assert (bc.dst, bc.src, bc.length) == (2, 1, 4)
     assert d.counters["bad_crc"] == 1 and d.counters["bad_length"] == 1
 
 
 def test_a_truncated_frame_does_not_hold_back_the_next_one():
-    cut = dl.encode_frame(2, 1, b"0123456789")[:9]           # header says 10 bytes, 3 came
-    good = dl.encode_frame(2, 1, b"ok")
-    d = dl.FrameDecoder(stall_timeout=0.5)
+    cut = encode_frame(2, 1, b"0123456789")[:9]           # header says 10 bytes, 3 came
+    good = encode_frame(2, 1, b"ok")
+    d = ds.FrameDecoder(stall_timeout=0.5)
     events = d.feed(cut + good, now=0.0)                     # a whole valid frame after a false start
-    assert frames_of(events) == [dl.DataLinkFrame(2, 1, b"ok")]
+    assert frames_of(events) == [ds.Frame(2, 1, b"ok")]
     # a truncated frame alone is reported when nothing more comes
     events = d.feed(cut, now=1.0)
     assert events == [] and d.pending == len(cut)
     assert d.expire(1.2) == []
     events = d.expire(1.6)
     assert [type(e).__name__ for e in events][0] == "Truncated" and d.pending == 0
-    assert frames_of(d.feed(good, now=2.0)) == [dl.DataLinkFrame(2, 1, b"ok")]
+    assert frames_of(d.feed(good, now=2.0)) == [ds.Frame(2, 1, b"ok")]
 
 
 def test_random_garbage_never_raises_and_frames_survive_it():
     rnd = random.Random(11)
     for _ in range(200):
-        d = dl.FrameDecoder(stall_timeout=0.1)
-        frames = [dl.DataLinkFrame(rnd.randrange(256), rnd.randrange(256), bytes(rnd.randrange(256) for _ in
+        d = ds.FrameDecoder(stall_timeout=0.1)
+        frames = [ds.Frame(rnd.randrange(256), rnd.randrange(256), bytes(rnd.randrange(256) for _ in
                                                                                   range(rnd.randrange(40))))
                   for _ in range(3)]
         # garbage free of 0x55 cannot fake a preamble: every frame must come out
         stream = b"".join(bytes(rnd.choice([x for x in range(256) if x != 0x55]) for _ in range(rnd.randrange(30)))
-                          + f.encode() for f in frames)
+                          + encode_frame(f.dst, f.src, f.payload) for f in frames)
         out = []
         pos = 0
         while pos < len(stream):
@@ -148,20 +153,21 @@ def test_random_garbage_never_raises_and_frames_survive_it():
         d.feed(junk, now=1.0)
         d.expire(5.0)
         d.expire(10.0)
-        assert frames_of(d.feed(frames[0].encode() * 2, now=11.0))[-1] == frames[0]
+        assert frames_of(d.feed(encode_frame(frames[0].dst, frames[0].src, frames[0].payload) * 2,
+                                now=11.0))[-1] == frames[0]
 
 
 def test_gli_messages():
-    f = dl.encode_frame(2, 1, b"x")
-    assert dl.gli_req_state() == b"\x01" and dl.gli_cmd_state(dl.PHY_READY) == b"\x02\x01"
-    m = dl.parse_gli(b"\x02\x00")
-    assert m.type == dl.MSG_CMD_STATE and m.state == dl.PHY_BUSY
-    assert dl.parse_gli(b"\x00" + f).body == f
+    f = encode_frame(2, 1, b"x")
+    assert fr.req_state_message() == b"\x01" and fr.state_message(fr.PHY_READY) == b"\x02\x01"
+    m = fr.parse_gli(b"\x02\x00")
+    assert m.type == fr.MSG_CMD_STATE and m.state == fr.PHY_BUSY
+    assert fr.parse_gli(b"\x00" + f).body == f
     for bad in (b"", b"\x07abc", b"\x02"):
-        with pytest.raises(dl.FramingError):
-            dl.parse_gli(bad)
-    assert dl.tx_queue_name("bluerov0-dev") == "/bluerov0-dev_tx_dlnk_phy"
-    assert dl.rx_queue_name("bluerov0-dev") == "/bluerov0-dev_rx_dlnk_phy"
+        with pytest.raises(fr.FramingError):
+            fr.parse_gli(bad)
+    assert fr.tx_queue_name("bluerov0-dev") == "/bluerov0-dev_tx_dlnk_phy"
+    assert fr.rx_queue_name("bluerov0-dev") == "/bluerov0-dev_rx_dlnk_phy"
 
 
 # =================================================================================================
@@ -226,12 +232,12 @@ def test_malformed_device_output_is_reported_and_survived(tmp_path):
     d = SerialRadioDriver(path, 1, "fake", on_frame=rx.append, on_event=evs.append, stall_timeout=0.3)
     try:
         assert d.open(WAIT)
-        bad = bytearray(dl.encode_frame(1, 5, b"corrupted"))
+        bad = bytearray(encode_frame(1, 5, b"corrupted"))
         bad[-1] ^= 0xFF
         os.write(master, b"+++AT:garbage\r\n" + bytes(bad) + b"\x55\x55\x01\x05\x7f\xff")
-        os.write(master, dl.encode_frame(1, 5, b"cut short")[:8])           # then nothing for a while
+        os.write(master, encode_frame(1, 5, b"cut short")[:8])           # then nothing for a while
         assert until(lambda: any("truncated" in e.detail for e in evs))      # after stall_timeout
-        os.write(master, dl.encode_frame(1, 5, b"fine") + dl.encode_frame(3, 5, b"for 3"))
+        os.write(master, encode_frame(1, 5, b"fine") + encode_frame(3, 5, b"for 3"))
         assert until(lambda: rx)
         time.sleep(0.05)
         assert [(f.src, f.dst, f.data) for f in rx] == [(5, 1, b"fine")]
@@ -240,7 +246,7 @@ def test_malformed_device_output_is_reported_and_survived(tmp_path):
         assert d.state == "open"
         # and the driver writes proper frames
         d.send(5, b"reply")
-        assert until(lambda: dl.encode_frame(5, 1, b"reply") in _read_all(master))
+        assert until(lambda: encode_frame(5, 1, b"reply") in _read_all(master))
     finally:
         d.close()
         os.close(master)
@@ -265,9 +271,9 @@ def test_emulator_survives_junk_written_to_its_pty(radios):
     assert db.open(WAIT)
     fd = open_raw_tty(emus["a"].path, 9600)
     try:
-        bad = bytearray(dl.encode_frame(2, 1, b"bad"))
+        bad = bytearray(encode_frame(2, 1, b"bad"))
         bad[7] ^= 1
-        os.write(fd, b"\xde\xad" + bytes(bad) + b"\x55\x55\x02\x01\x99\x99" + dl.encode_frame(2, 1, b"good"))
+        os.write(fd, b"\xde\xad" + bytes(bad) + b"\x55\x55\x02\x01\x99\x99" + encode_frame(2, 1, b"good"))
         assert until(lambda: rx_b)
         assert [f.data for f in rx_b] == [b"good"]
         c = emus["a"].counters
@@ -307,7 +313,6 @@ def test_stream_decoder_in_every_framing(name):
     import json
     from pathlib import Path
 
-    from uwsimnet_zenoh.phy import framing as fr
 
     key = {"VariableLength2BPacketBuilder": "vl2b", "VariableLengthPacketBuilder": "vlp",
            "SimplePacketBuilder20crc16": "sp20", "DataLinkFrameBuilderCRC32": "dlf32"}[name]
@@ -316,10 +321,10 @@ def test_stream_decoder_in_every_framing(name):
     f = fr.builder(name)
     bad = bytearray(frames[-1])
     bad[-1] ^= 0x01
-    d = dl.FrameDecoder(framing=f)
+    d = ds.FrameDecoder(framing=f)
     events = d.feed(b"\x00junk\r\n" + frames[0] + bytes(bad) + b"".join(frames[1:]))
-    got = [e.frame.payload for e in events if isinstance(e, dl.FrameReceived)]
+    got = [e.frame.payload for e in events if isinstance(e, ds.FrameReceived)]
     assert got == [f.parse(x).payload for x in frames]
     assert d.counters["bad_crc"] >= 1 and d.counters["garbage_bytes"] >= 7
     if not f.addressed:
-        assert all(e.frame.dst == dl.BROADCAST for e in events if isinstance(e, dl.FrameReceived))
+        assert all(e.frame.dst == fr.BROADCAST for e in events if isinstance(e, ds.FrameReceived))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from uwsimnet_zenoh.phy import framing as fr
+from uwsimnet_zenoh.formats import dccomms as fr
 
 V = json.loads((Path(__file__).parent / "data" / "dccomms_vectors.json").read_text())
 

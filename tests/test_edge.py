@@ -20,6 +20,7 @@ from uwsimnet_zenoh.bus.outbox import Lane, Outbox
 from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.kernel.realtime import RealtimeClock
 from uwsimnet_zenoh.scene.load import load_scene_text
+from uwsimnet_zenoh.trace.tracer import STATUSES, Callback
 
 SLACK = 0.05        # s: generous bound for a loaded 2-core machine (the stall it guards against is unbounded)
 
@@ -193,7 +194,8 @@ def test_a_flood_on_one_modem_does_not_delay_the_others(rig):
     b, net, clock, session, _ = rig(4, lane_capacity=1000, fifo=2000, split=True)
     st0 = session.pubs["uwsimnet/edge/modem/m0/status"]
     said = []                          # every status the modem itself gave (queued, sent, dropped fifo)
-    net.modems["m0"].on_status.append(lambda m, f, ev, reason, t: said.append(ev))
+    net.tracer.listen(Callback(lambda t, ev, ch, dev, *_: said.append(ev) if dev == "m0" and ev in STATUSES else None),
+                      statuses=True)
     rx3 = session.pubs["uwsimnet/edge/modem/m3/rx"]
     modelled = 100 * 0.6667e-3 + 40 * 8 / 100_000
 

@@ -19,8 +19,9 @@ pytest.importorskip("uwsimnet_gli")
 from test_broker_e2e import PY, ROOT, UWSIMNET, Broker, Proc, device_xml, scene_xml, vehicle_xml  # noqa: E402
 from uwsimnet_gli import World  # noqa: E402
 
-from uwsimnet_zenoh.drivers import dccomms_framing as dl  # noqa: E402
-from uwsimnet_zenoh.drivers.serial_radio import set_raw  # noqa: E402
+from uwsimnet_zenoh.drivers.dccomms.driver import set_raw  # noqa: E402
+from uwsimnet_zenoh.formats import dccomms as fr  # noqa: E402
+from uwsimnet_zenoh.formats import dccomms_stream as ds  # noqa: E402
 
 WORLD = "emuserial"
 WAIT = 10.0
@@ -42,15 +43,15 @@ def broker(tmp_path_factory):
     assert b.stop() == 0, b.output()
 
 
-def read_frames(fd: int, dec: dl.FrameDecoder, n: int, timeout: float = WAIT) -> list[dl.DataLinkFrame]:
+def read_frames(fd: int, dec: ds.FrameDecoder, n: int, timeout: float = WAIT) -> list[ds.Frame]:
     """The next `n` valid frames from the pty (anything else fails the test)."""
-    out: list[dl.DataLinkFrame] = []
+    out: list[ds.Frame] = []
     deadline = time.monotonic() + timeout
     while len(out) < n and time.monotonic() < deadline:
         r, _, _ = select.select([fd], [], [], max(0.0, deadline - time.monotonic()))
         if r:
             for ev in dec.feed(os.read(fd, 4096), time.monotonic()):
-                assert isinstance(ev, dl.FrameReceived), ev
+                assert isinstance(ev, ds.FrameReceived), ev
                 out.append(ev.frame)
     assert len(out) == n, f"{len(out)} of {n} frames within {timeout} s"
     return out
@@ -77,7 +78,7 @@ def test_emulate_serial_frames_both_ways_bad_crc_and_sigterm(broker, tmp_path: P
         assert where[1:] == ["link", str(link)] and os.path.realpath(link) == os.path.realpath(path), line
         fd = os.open(link, os.O_RDWR | os.O_NOCTTY)
         set_raw(fd)
-        dec = dl.FrameDecoder()
+        dec = ds.FrameDecoder()
         with World(WORLD, connect=broker.endpoint) as w:
             b = w.modem("b-m")
             assert b.wait_kind(("sim",), timeout=5) == "sim"
@@ -89,14 +90,14 @@ def test_emulate_serial_frames_both_ways_bad_crc_and_sigterm(broker, tmp_path: P
             assert (f.dst, f.src, f.payload) == (1, 2, payload)
 
             # a frame written into the pty -> a-m sends it -> the app gets it from address 1
-            os.write(fd, dl.encode_frame(2, 1, b"from the radio"))
+            os.write(fd, fr.DEFAULT.encode(dst=2, src=1, payload=b"from the radio"))
             g = b.receive(timeout=WAIT)
             assert g is not None and (g.src, g.dst, g.data) == (1, 2, b"from the radio")
 
             # a corrupted frame is reported and skipped; the next good frame still goes through
-            bad = bytearray(dl.encode_frame(2, 1, b"corrupted"))
+            bad = bytearray(fr.DEFAULT.encode(dst=2, src=1, payload=b"corrupted"))
             bad[-1] ^= 0xFF
-            os.write(fd, bytes(bad) + dl.encode_frame(2, 1, b"after the bad one"))
+            os.write(fd, bytes(bad) + fr.DEFAULT.encode(dst=2, src=1, payload=b"after the bad one"))
             g = b.receive(timeout=WAIT)
             assert g is not None and (g.src, g.dst, g.data) == (1, 2, b"after the bad one")
             assert wait_for(lambda: any("a-m: bad CRC (frame 1->2, 9 bytes payload) on the pty, frame skipped"

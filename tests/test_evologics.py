@@ -16,10 +16,10 @@ import time
 import pytest
 from conftest import device, scene, vehicle
 
-from uwsimnet_zenoh.drivers import evologics_at as at
-from uwsimnet_zenoh.drivers.emulators import ERRORS, EvoLogicsEmulator, im_duration_us
-from uwsimnet_zenoh.drivers.evologics import EvoLogicsDriver
+from uwsimnet_zenoh.drivers.evologics.driver import EvoLogicsDriver
+from uwsimnet_zenoh.drivers.evologics.emulator import ERRORS, EvoLogicsEmulator, im_duration_us
 from uwsimnet_zenoh.drivers.sim_backend import SimWorld
+from uwsimnet_zenoh.formats import evologics_at as at
 
 WAIT = 5.0       # s: every wait in this file gives up after this
 
@@ -371,7 +371,15 @@ def test_the_net_interpreter_for_dune(world):
     raw = Raw(emus["a-dev"].port)
     raw.send(b"AT?MODE\nATO\n+++AT?AL\nAT?AL\n")
     assert raw.lines(4) == [b"NET", b"ERROR WRONG FORMAT", b"ERROR WRONG FORMAT", b"1"]
+    # AT?S is a multi-line answer on the net interpreter: evins' role_at.erl (from_term_helper, 3b5c6c0) waits
+    # with `{"?S", net} -> multiline` until "\n\r\n", i.e. the block's lines and then an empty line
+    raw.send(b"AT?S\nAT?AL\n")
+    assert raw.lines(3) == [b"INITIATION LISTEN 16384", b"", b"1"]
     raw.close()
+    at_side = Raw(world(two_modems(150.0))[1]["a-dev"].port)
+    at_side.send(b"AT?S\nAT?AL\n")                  # the at interpreter: one line (role_at: singleline)
+    assert at_side.lines(2) == [b"INITIATION LISTEN 16384", b"1"]
+    at_side.close()
 
 
 def test_data_mode_framing_and_burst_data(world):

@@ -270,7 +270,7 @@ def test_every_line_parses_by_dune_formats(modems):
 # =================================================================================================
 @pytest.mark.parametrize("link_mode", ["command", "data"])
 def test_driver_loses_no_frame_back_to_back(modems, link_mode):
-    from uwsimnet_zenoh.drivers.evologics import EvoLogicsDriver
+    from uwsimnet_zenoh.drivers.evologics.driver import EvoLogicsDriver
 
     st: list = []
     with Host("127.0.0.1", modems["b-m"]) as b:

@@ -15,6 +15,7 @@ from uwsimnet_zenoh.mac.examples import Tdma
 from uwsimnet_zenoh.mac.nomac import NoMac
 from uwsimnet_zenoh.mac.sfama import SFama
 from uwsimnet_zenoh.scene.model import Flow
+from uwsimnet_zenoh.trace.tracer import STATUSES, Callback
 
 C = 1500.0
 
@@ -25,7 +26,8 @@ def at(rec: Recorded, t: float, dev: str, dst: int, size: int) -> None:
 
 def statuses(rec: Recorded, dev: str) -> list[tuple]:
     out: list[tuple] = []
-    rec.net.modems[dev].on_status.append(lambda m, f, ev, reason, t: out.append((round(t, 9), f.seq, ev, reason)))
+    rec.net.tracer.listen(Callback(lambda t, ev, ch, d, f, reason, *_: out.append((round(t, 9), f.seq, ev, reason))
+                                   if d == dev and ev in STATUSES else None), statuses=True)
     return out
 
 

@@ -26,7 +26,7 @@ from uwsimnet_zenoh.cli.main import main
 from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.kernel.frame import Frame
 from uwsimnet_zenoh.trace import events
-from uwsimnet_zenoh.trace.events import JsonlSink, Tracer
+from uwsimnet_zenoh.trace.events import Callback, JsonlSink, Tracer
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "scenes").rglob("*.xml"))
@@ -165,7 +165,7 @@ def test_batched_lines_keep_their_order_around_fallbacks():
 def test_listeners_see_every_event_once():
     tr = Tracer()
     seen = []
-    tr.listen(lambda *a: seen.append(a[1]))
+    tr.listen(Callback(lambda *a: seen.append(a[1])))
     tr.emit(1.0, "tx", 0, "a", Frame(1, 2, 0, 10, 10))
     assert seen == ["tx"] and tr.count("tx") == 1
 
@@ -374,7 +374,7 @@ def test_run_trace_is_the_listener_trace(tmp_path):
     with open(tmp_path / "e.jsonl", "wb") as fh:
         sink = JsonlSink(fh)
         sink.header(net.meta())
-        net.tracer.listen(sink.event)
+        net.tracer.listen(sink)
         net.run()
         sink.flush()
     assert (tmp_path / "b.jsonl").read_bytes() == (tmp_path / "e.jsonl").read_bytes()

@@ -14,6 +14,7 @@ from conftest import device, scene, vehicle
 from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.kernel.realtime import HANDOFF_S, RealtimeClock, run_for
 from uwsimnet_zenoh.kernel.scheduler import Scheduler
+from uwsimnet_zenoh.trace.tracer import Callback
 
 SLACK = 0.25     # s: what a loaded machine may add (60-80 ms seen with the suite's two workers and other jobs);
 #                   the modelled times below are long enough that a wrong clock misses by more than that
@@ -281,7 +282,8 @@ def test_a_network_in_realtime_delivers_after_the_modelled_delay(clock):
                 vehicle("b", (900, 0, 0), device("b-m", 2, bitrate=10_000))], duration=8)
     net = Network(sc, flows=False)
     got = []
-    net.modems["b-m"].on_receive.append(lambda m, f, t, d: got.append((f.t_enq, t, time.perf_counter())))
+    net.tracer.listen(Callback(lambda t, ev, ch, dev, f, *_: got.append((f.t_enq, t, time.perf_counter()))
+                               if ev == "rx" and dev == "b-m" else None))
     c = clock(net.sched)
     c.start()
     sent = []

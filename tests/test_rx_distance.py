@@ -24,7 +24,7 @@ from uwsimnet_gli.wire import Keys  # noqa: E402
 
 from uwsimnet_zenoh.bus.session import make_config, open_session  # noqa: E402
 from uwsimnet_zenoh.drivers.backend import BackendFrame, link_metrics  # noqa: E402
-from uwsimnet_zenoh.drivers.emulators import EvoLogicsEmulator  # noqa: E402
+from uwsimnet_zenoh.drivers.evologics.emulator import EvoLogicsEmulator  # noqa: E402
 from uwsimnet_zenoh.drivers.zenoh_backend import ZenohBackend  # noqa: E402
 from uwsimnet_zenoh.engine.network import Network  # noqa: E402
 from uwsimnet_zenoh.scene.load import load_scene_text  # noqa: E402

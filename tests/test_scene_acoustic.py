@@ -12,6 +12,7 @@ from uwsimnet_zenoh.engine.network import Network
 from uwsimnet_zenoh.phy.acoustic import PRESETS, AcousticLink, sound_speed_mackenzie, source_level_db
 from uwsimnet_zenoh.scene import Channel, Device, SceneError, load_scene, load_scene_text
 from uwsimnet_zenoh.scene.model import AcousticChannelSpec, AcousticDeviceSpec
+from uwsimnet_zenoh.trace.tracer import Callback
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -239,7 +240,7 @@ def test_end_to_end_delay_uses_the_sound_speed() -> None:
     scene, _ = _load(text)
     net = Network(scene)
     got = []
-    net.modems["b-dev"].on_receive.append(lambda m, f, t, d: got.append(t))
+    net.tracer.listen(Callback(lambda t, ev, ch, dev, f, *_: got.append(t) if ev == "rx" and dev == "b-dev" else None))
     net.sched.at(1.0, lambda: net.modems["a-dev"].send(2, 139))
     net.run(10.0)
     assert got == [pytest.approx(1.0 + 740 / 1480 + 139 * 8 / 13900, abs=1e-9)]

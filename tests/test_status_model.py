@@ -15,6 +15,7 @@ from test_mac import net3
 from uwsimnet_gli.wire import FINAL_EVENTS, STATUS_EVENTS, CodecError, decode_status, encode_status
 
 from uwsimnet_zenoh.scene.model import Flow
+from uwsimnet_zenoh.trace.tracer import STATUSES, Callback
 
 CASES = [
     ("none", {}, False),
@@ -33,8 +34,8 @@ def flows(dst_b: int) -> list[Flow]:
 
 def record(rec: Recorded) -> dict[tuple[str, int], list[str]]:
     out: dict[tuple[str, int], list[str]] = defaultdict(list)
-    for dev, m in rec.net.modems.items():
-        m.on_status.append(lambda m, f, ev, reason, t, dev=dev: out[(dev, f.seq)].append(ev))
+    rec.net.tracer.listen(Callback(lambda t, ev, ch, dev, f, *_: out[(dev, f.seq)].append(ev)
+                                   if ev in STATUSES else None), statuses=True)
     return out
 
 

@@ -25,8 +25,8 @@ unetpy = pytest.importorskip("unetpy", reason="unetpy is in the dev extra (pip i
 from test_broker_e2e import UWSIMNET, WALL_SLACK, Broker, Proc, device_xml, free_port, scene_xml, stop_all  # noqa: E402
 from unetpy import DatagramNtf, Protocol, RxFrameNtf, Services, TxFrameNtf, TxFrameReq, UnetSocket  # noqa: E402
 
-from uwsimnet_zenoh.drivers.emulators import im_duration_us  # noqa: E402
-from uwsimnet_zenoh.drivers.evologics_at.events import IM_MAX  # noqa: E402
+from uwsimnet_zenoh.drivers.evologics.emulator import im_duration_us  # noqa: E402
+from uwsimnet_zenoh.formats.evologics_at.events import IM_MAX  # noqa: E402
 
 WORLD = "unetgw"
 PROP, BITRATE, INTRINSIC_TX = 0.6667e-3, 10_000.0, 0.001

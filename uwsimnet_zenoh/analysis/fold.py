@@ -15,8 +15,8 @@ from typing import Any, Final
 
 from mypy_extensions import mypyc_attr
 
-from ..kernel.frame import BROADCAST
-from ..trace.tracer import EventFold
+from ..kernel.frame import BROADCAST, Frame
+from ..trace.tracer import Listener, round_fast
 from .read import RX_REASONS, TX_REASONS
 
 _BROADCAST: Final = BROADCAST
@@ -201,7 +201,7 @@ class ChannelState:
         self.drop_events: dict[str | None, Count] = {}
 
 
-class Fold(EventFold):
+class Fold(Listener):
     """The state of a run's events so far.  `meta_tx`/`meta_rx`: (channel, address) -> dccommsId from the
     meta (the fallbacks of transmitters learnt from enq/tx events); `header`: header bytes per dccommsId."""
 
@@ -221,6 +221,8 @@ class Fold(EventFold):
         self._last_ch: object = None        # the channel of the last event, its state and its transmitters
         self._c: ChannelState | None = None
         self._ctx = Addresses()
+        self._t_prev = math.nan             # the last float time `event` was given, and its record's time:
+        self._t9_prev: object = None        # events come in runs at one time (enq, then tx or drop)
 
     def flow(self, name: str, src: str | None, dst: int | None, payload: int | None) -> int:
         """The id of flow `name`, a new one with these fields if it has none."""
@@ -278,15 +280,32 @@ class Fold(EventFold):
             raise ValueError(f"{len(rows)} rows and {len(t9)} times")
         for k in range(len(rows)):
             r: tuple[Any, ...] = rows[k]
-            self.event(t9[k], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[12] is not None,
-                       bool(r[13]))
+            self.fold(t9[k], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[12] is not None,
+                      bool(r[13]))
 
-    def event(self, t: object, ev: str, ch: object, dev: str, src: int, dst: object, seq: int, size: int,
-              flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool) -> None:
+    def event(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None, fifo: int | None,
+              dist: Any, implicit: Any) -> None:
+        """A frame event from the output port (trace.tracer.Listener): `fold` of its record's fields, its
+        time rounded as the record says it (once per run of events at one time)."""
+        if type(t) is float:
+            tf: float = t
+            if tf == self._t_prev:
+                t9: Any = self._t9_prev
+            else:
+                t9 = round_fast(tf, 1e9, 9)
+                if tf > 0.0:        # (never -0.0, which equals 0.0 but is another record)
+                    self._t_prev = tf
+                    self._t9_prev = t9
+        else:
+            t9 = round(t, 9)
+        self.fold(t9, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind, reason,
+                  dist is not None, bool(implicit))
+
+    def fold(self, t: object, ev: str, ch: object, dev: str, src: int, dst: object, seq: int, size: int,
+             flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool) -> None:
         """One frame event, its record's fields (`t` its time as the record says it, `dst` None if the
         record had none, `has_dist` whether it had a distance): the definition of the metrics, per event.
-        The tracer calls it at once for a run's online summary (trace.tracer.EventFold); `rows` for a
-        trace read back."""
+        `event` calls it at once for a run's online summary; `rows` for a trace read back."""
         t_end = self.t_end
         t_o: object = t         # (stored as given: a float narrowed below would be boxed anew)
         if isinstance(t, float) and isinstance(t_end, float):

@@ -282,10 +282,10 @@ class Accumulator:
             self._fold.rows(pending, [r[0] for r in pending])
 
     def follow(self, tracer: Any) -> None:
-        """Take a run's events as they happen: the fold is the tracer's `EventFold` (called at once, natively
+        """Take a run's events as they happen: the fold listens to the output port (called at once, natively
         when compiled, with no row built for it)."""
         self._drain()
-        tracer.fold(self._fold)
+        tracer.listen(self._fold)
 
     def on_batch(self, b: Any) -> None:
         """A batch consumer (trace.events.Tracer.consume): the events of a `Batch`, their records' times

@@ -57,8 +57,9 @@ def plugin_failure(sink: CallbackSink | None) -> str | None:
 
 
 def failed_plugin(net: Network) -> str | None:
-    """`plugin_failure` of the tracing plug-in among `net`'s trace sinks."""
-    for s in net.tracer.sinks:
+    """`plugin_failure` of the tracing plug-in among the listeners of `net`'s output port."""
+    for lst in net.tracer.listeners:
+        s = getattr(lst, "fn", None)        # (trace.tracer.Records: the plug-in takes records)
         if isinstance(s, CallbackSink) and s.failed is not None:
             return plugin_failure(s)
     return None

@@ -15,14 +15,15 @@ The bridge plays dccomms' PHY side (what UWSim-NET's simulator, dccomms_ros' ROS
 reads and writes frames in the modem's framing (the scene's txPacketBuilder/rxPacketBuilder, which the
 broker publishes in the modem's info; DataLinkFrame CRC16 when there is none, the original's default):
 
-* app -> modem: a FRAME is parsed as dccomms does (`phy.framing`), checked like IsOk(), and handed to the
+* app -> modem: a FRAME is parsed as dccomms does (`formats.dccomms`), checked like IsOk(), and handed to the
   modem for its destination (DataLinkFrame: the header's dst; other framings: the virtual area's).  It
   is answered READY, since the simulated modem has its own FIFO.  A message the bridge refuses (unknown
   type, a frame that fails its CRC or cannot be parsed, a payload the modem cannot carry) is logged as a
   WARNING with the reason and counted (`info()["refused"]`); it is still answered READY so that the
   application, which marked the PHY busy when it wrote, does not wait forever.
 * modem -> app: every frame is written as a FRAME message in the receiving framing, with the virtual
-  area filled as the original simulator did: seq, src = the sender's address, dst.
+  area filled as the original simulator did: seq = the sending application's (its virtual area's, carried as
+  the wire's `aseq`; the modem's seq when the sender set none), src = the sender's address, dst.
 
 `GliQueueClient` is the application side (what `CommsDeviceService` does), for tests and Python programs.
 """
@@ -38,8 +39,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..drivers._aio import LoopThread
+from ..drivers.app_seq import AppSeq, app_seq
 from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend, detach
-from ..phy import framing as fr
+from ..formats import dccomms as fr
 from .posix_mq import MessageQueue, MqError
 
 log = logging.getLogger("uwsimnet.bridges.mq")
@@ -59,14 +61,7 @@ def _msgqueue_limit() -> str:
         return "?"
 
 
-def tx_queue_name(dccomms_id: str) -> str:
-    """The queue the application writes frames to (the PHY side reads it)."""
-    return f"/{dccomms_id}_tx_dlnk_phy"
-
-
-def rx_queue_name(dccomms_id: str) -> str:
-    """The queue the application reads frames from (the PHY side writes it)."""
-    return f"/{dccomms_id}_rx_dlnk_phy"
+tx_queue_name, rx_queue_name = fr.tx_queue_name, fr.rx_queue_name
 
 
 def _framing(value: fr.Framing | str | None, info: dict[str, Any], key: str) -> fr.Framing:
@@ -224,6 +219,10 @@ class MqBridge:
         except fr.FramingError as e:
             self._refuse("frame", f"{f.name}: {e} (message of {len(msg)} bytes)")
             return
+        if m.packet.kind != "data":                     # DcMac rts/cts/sync: made by the MAC, not carried
+            self._refuse("control", f"{f.name}: a {m.packet.kind} packet is DcMac's own control frame; run DcMac"
+                                    " in the scene (its MAC) instead of in the application")
+            return
         if m.va is None:
             self.counters["no_virtual_area"] += 1       # frame-only message: not dccomms' layout
         dst = m.dst
@@ -233,16 +232,21 @@ class MqBridge:
         if m.packet.src is not None and m.packet.src != self.backend.address:
             self.counters["src_mismatch"] += 1
         self.counters["tx"] += 1
-        self.backend.send(dst, m.packet.payload)
+        # the application's own seq (its virtual area's; a frame-only SimplePacket: its frame's) goes along
+        seq = m.va.seq if m.va is not None else m.packet.seq
+        self.backend.send(dst, m.packet.payload, msg=None if seq is None else AppSeq(seq))  # type: ignore[arg-type]
 
     # -- modem -> application -----------------------------------------------------------------------
     def _bk_frame(self, f: BackendFrame) -> None:
         rf = self.rx_framing
-        if (rf.addressed and not (0 <= f.src <= 255 and 0 <= f.dst <= 255)) \
+        top = rf.max_address
+        if (rf.addressed and not (0 <= f.src <= top and (0 <= f.dst <= top or f.dst == fr.BROADCAST))) \
                 or rf.check_payload(len(f.data)) is not None:
             self.counters["rx_unrepresentable"] += 1
             return
-        seq = f.seq if f.seq is not None and f.seq >= 0 else self._seq
+        seq = app_seq(f)
+        if seq is None:                 # an application that set none (on Zenoh): the modem's seq, else ours
+            seq = f.seq if f.seq is not None and f.seq >= 0 else self._seq
         self._seq += 1
         msg = fr.frame_message(rf, rf.encode(f.data, dst=f.dst, src=f.src), fr.VirtualArea(seq, f.src, f.dst))
         self._io.call(self._queue_out, msg, True)

@@ -11,6 +11,7 @@ from collections import Counter
 from typing import Any
 
 from ..drivers._aio import LoopThread, ServerClient, TcpServer
+from ..drivers.app_seq import app_seq
 from ..drivers.backend import BackendFrame, BackendStatus, ModemBackend, detach
 from .socket_wire import (
     MAX_DATA,
@@ -141,7 +142,9 @@ class SocketBridge:
 
     def _rx(self, f: BackendFrame) -> None:
         self.counters["rx"] += 1
-        msg = encode_rx(f.src, f.dst, f.data, f.seq if f.seq >= 0 else NO_SEQ, f.t_tx, f.t_rx)
+        seq = app_seq(f)                # the sending application's seq (an mq-bridge app's), else the modem's
+        msg = encode_rx(f.src, f.dst, f.data, seq if seq is not None else f.seq if f.seq >= 0 else NO_SEQ,
+                        f.t_tx, f.t_rx)
         for c in list(self._tcp_clients):
             c.write(msg)
         for addr in self._udp_peers:

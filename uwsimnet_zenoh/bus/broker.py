@@ -15,10 +15,10 @@ on the key space of docs/gli-protocol.md:
   leaves the channel and what it held ends `dropped` reason `swapped`, its tx is ignored); when the
   token goes the device is re-added from the scene and served again.
 
-Threading: Zenoh callbacks run on Zenoh's threads and hand raw bytes on: a tx message to its
-modem's ingress `Lane` (bounded; the engine takes the lanes round-robin, so a flood on one modem does
-not delay the others), run at once on the callback's thread when the engine waits (`clock.run_here`:
-one thread wake-up less, the same work under the engine's lock), anything else to `clock.call_soon`.
+Threading (the turn's rules: kernel/realtime.py): Zenoh callbacks run on Zenoh's network thread and hand
+raw bytes on: a tx message to its modem's ingress `Lane` (bounded; the engine takes the lanes round-robin,
+so a flood on one modem does not delay the others), run at once on the callback's thread when the engine
+waits (`clock.run_here`), anything else to `clock.call_soon`.
 Pose samples have no callback: they wait in a Zenoh ring channel that the engine takes from when it
 reads the geometry or idles (every 2 ms at least), each stamped with the time the router received it.
 Decoding and simulation never make a Zenoh put: rx, status, trace, pose and clock messages leave through
@@ -40,13 +40,16 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 from uwsimnet_gli import wire
-from uwsimnet_gli.wire import Keys, check_chunk, is_chunk, parse
+from uwsimnet_gli.wire import Keys, check_chunk, parse
 
-from ..trace.events import Batch, row_record
+from ..trace.events import Batch, Listener, row_record
+from ..trace.tracer import FRAME_EVENTS
 from .control import Control
 from .endpoint import BLOCK, ModemEndpoint
 from .hil import RETOKEN, SWAP_IN, SWAP_OUT, HilSwap
-from .outbox import INGRESS_WARN_S, LANE_CAPACITY, OUTBOX_CAPACITY, POSE_KEYS, Lane, Latest, Outbox
+from .outbox import INGRESS_WARN_S, LANE_CAPACITY, OUTBOX_CAPACITY, POSE_KEYS, Lane, Latest, Outbox, Throttle
+from .poses import KEY_CACHE, POSE_RING, Poses
+from .queries import Queries
 
 if TYPE_CHECKING:
     from ..engine.network import Network
@@ -57,40 +60,16 @@ if TYPE_CHECKING:
 log = logging.getLogger("uwsimnet.bus.broker")
 SWITCH_INTERVAL = 0.0005
 """s: the interpreter's thread switch interval while a broker runs (see Broker.start)."""
-KEY_CACHE = 4096
-"""Key expressions whose parse is remembered (tx keys -> modem id, pose keys -> vehicle and verdict)."""
-POSE_RING = 16384
-"""Pose samples Zenoh holds for the engine between two takes (a ring: when full, the oldest goes)."""
 POSE_POLL_S = 0.002
 """Wall s: the engine takes the pose samples at least this often when it waits (RealtimeClock.poll)."""
 _MISS = object()
 
 def _direct(fn: Any) -> Any:
-    """Run `fn` on Zenoh's network thread instead of a Python thread of its own: one thread hop (and
-    ~0.1 ms of wake-up on a VM) less per message.  Only for callbacks that merely enqueue."""
+    """`fn` as a Zenoh callback run on Zenoh's network thread (`indirect=False`, unstable in zenoh-python),
+    not on a Python thread of its own: one thread hop (~0.1 ms of wake-up on a VM) less per message.  The tx
+    callback offers to a bounded lane and, when the engine waits, runs the message and its events right
+    there (`RealtimeClock.run_here`): what that costs is said once, in kernel/realtime.py."""
     return zenoh.handlers.Callback(fn, indirect=False)
-
-
-class Throttle:
-    """At most `burst` log lines per key, then one per `every` seconds with the count suppressed."""
-
-    def __init__(self, burst: int = 5, every: float = 5.0) -> None:
-        self.burst = burst
-        self.every = every
-        self._n: Counter[str] = Counter()
-        self._last: dict[str, float] = {}
-        self._hidden: Counter[str] = Counter()
-
-    def __call__(self, key: str, msg: str, *args: Any) -> None:
-        self._n[key] += 1
-        now = time.monotonic()
-        if self._n[key] <= self.burst or now - self._last.get(key, 0.0) >= self.every:
-            hidden = self._hidden.pop(key, 0)
-            suffix = f" ({hidden} similar messages suppressed)" if hidden else ""
-            log.warning(msg + suffix, *args)
-            self._last[key] = now
-        else:
-            self._hidden[key] += 1
 
 
 class Endpoint(ModemEndpoint):
@@ -107,7 +86,23 @@ class Endpoint(ModemEndpoint):
         self.bad: Counter[str] = Counter()      # messages refused before reaching the modem, by reason
 
 
-class Broker:
+class _Output(Listener):
+    """The broker on the output port: the rx (frames handed up: kind data) and status events of the
+    modems it serves go to their endpoints' outboxes at once; the trace goes at idle (`_trace_batch`)."""
+
+    def __init__(self, broker: Broker) -> None:
+        self.broker = broker
+
+    def event(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None, fifo: int | None,
+              dist: Any, implicit: Any) -> None:
+        if ev == "rx":
+            if frame.kind == "data":
+                self.broker._on_rx(dev, frame, t, dist)
+        elif ev not in FRAME_EVENTS:
+            self.broker._on_status(dev, frame, ev, reason, t)
+
+
+class Broker(Poses, Queries):
     def __init__(self, session: zenoh.Session, net: Network, clock: RealtimeClock, *,
                  world: str | None = None, channels: Iterable[int] | None = None,
                  tx_limit: int = wire.MAX_TX_MESSAGE, publish_trace: bool = True,
@@ -129,7 +124,7 @@ class Broker:
         self.foreign: set[str] = set(foreign)
         """Modem ids of the scene served by other brokers (their channels are not ours): ignored here."""
         self.counters: Counter[str] = Counter()
-        self.warn = Throttle()
+        self.warn = Throttle(logger=log)
         self.outbox_capacity = outbox_capacity
         self.lane_capacity = lane_capacity
         self.ingress_warn_s = ingress_warn_s
@@ -152,8 +147,8 @@ class Broker:
         """Outboxes holding non-urgent messages (statuses) whose thread is to be woken (_wake_outboxes)."""
         self._misc = self._outbox("*misc", outbox_capacity)
         self._trace_out: Outbox | None = None
-        self._leaving: dict[Modem, Outbox] = {}
-        """Simulated modems handed to a real driver: what they still say goes out here (HIL swap)."""
+        self._leaving: dict[str, Outbox] = {}
+        """Simulated modems handed to a real driver, by id: what they still say goes out here (HIL swap)."""
         self._entities: list[Any] = []
         self._trace_pubs: dict[int, Any] = {}
         self._pose_pubs: dict[str, Any] = {}
@@ -189,6 +184,7 @@ class Broker:
             check_chunk(dev, "dccommsId")
         for m in list(net.modems.values()):
             self.attach(m)
+        net.tracer.listen(_Output(self), statuses=True)
         ent = self._entities
         cb = _direct
         ent.append(s.declare_subscriber(k.tx_all, cb(self._on_tx_sample)))
@@ -282,8 +278,7 @@ class Broker:
         self.foreign.discard(m.id)
         if m.id not in self.real:
             ep.token = s.liveliness().declare_token(k.driver(m.id, "sim"))
-        m.on_receive.append(self._on_rx)
-        m.on_status.append(self._on_status)
+        self._leaving.pop(m.id, None)
         return ep
 
     def detach(self, dev: str) -> None:
@@ -365,73 +360,6 @@ class Broker:
             if lane.more():
                 self.clock.call_soon(self._drain_lane, lane)
 
-    def _take_poses(self) -> None:
-        """(engine) Move the pose samples Zenoh holds into `_poses_in`, each stamped with its arrival."""
-        sub = self._pose_sub
-        if sub is None:
-            return
-        clock = self.clock
-        now = clock.now()
-        epoch = clock.wall_epoch()
-        n = 0
-        while True:
-            smp = sub.try_recv()
-            if smp is None:
-                break
-            n += 1
-            self._pose_sample(smp, now, epoch)
-        self._pose_taken = now              # what comes next arrived after now
-        if n >= POSE_RING:
-            self.counters["pose_ring_full"] += 1
-            self.warn("pose_ring_full", "%d pose samples waited for the engine: older ones may have been"
-                      " lost", n)
-
-    def _pose_sample(self, sample: Any, now: float, epoch: float) -> None:
-        """One pose sample, kept as the newest of its key, stamped with its arrival in simulation time: the
-        Zenoh timestamp a router gave it on arrival (bounded by the previous take and `now`: another
-        machine's clock may be off), else `now`.  `epoch`: the clock's wall_epoch()."""
-        raw = sample.payload.to_bytes()       # (a pose is a few dozen bytes; Zenoh's ring bounds the rest)
-        if len(raw) > wire.MAX_SMALL_MESSAGE:
-            raw = None
-        ts = sample.timestamp
-        stamp = now
-        if ts is not None:
-            at = (ts.get_time_as_ntp64().as_secs_f64() - epoch) * self.clock.speed
-            stamp = min(now, max(self._pose_taken, at))
-        self._poses_in.offer(str(sample.key_expr), stamp, raw)
-
-    def _on_info_query(self, query: zenoh.Query) -> None:
-        self._queue_query(self._info_lane, query, self._answer_info, query)
-
-    def _on_control_query(self, query: zenoh.Query) -> None:
-        pl = query.payload
-        raw = pl.to_bytes() if pl is not None and len(pl) <= wire.MAX_SMALL_MESSAGE else pl
-        self._queue_query(self._control_lane, query, self._answer_control, query, raw)
-
-    def _queue_query(self, lane: Lane, query: zenoh.Query, fn: Any, *args: Any) -> None:
-        """(Zenoh thread) A query waits in its lane, which takes its turn among the modems' tx lanes: a
-        flood of queries costs the other modems' frames one query per round, not the whole flood."""
-        r = lane.offer((fn, args))
-        if r:
-            self.clock.call_soon(self._drain_queries, lane)
-        elif r is None:
-            with contextlib.suppress(Exception), query:
-                query.reply_err(wire.pack({"ok": False, "error": f"busy: {lane.capacity} queries are waiting"}))
-            self.warn(f"ingress:{lane.name}", "%s query refused: %d queries waiting for the engine", lane.name[1:],
-                      len(lane))
-
-    def _drain_queries(self, lane: Lane) -> None:
-        """(engine) One query of `lane`, then back in line behind the modems."""
-        got = lane.take()
-        if got is None:
-            return
-        _, (fn, args) = got
-        try:
-            fn(*args)
-        finally:
-            if lane.more():
-                self.clock.call_soon(self._drain_queries, lane)
-
     def _on_driver_sample(self, sample: zenoh.Sample) -> None:
         self.clock.call_soon(self._driver_change, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
 
@@ -483,28 +411,28 @@ class Broker:
             self.warn(f"nopose:{dev}", "%s: tx dropped (nopose): vehicle %s has no pose yet", dev, m.vehicle)
         m.send(req.dst, len(req.data), data=req.data, flow=req.flow, tag=req.tag, refuse=refuse, msg=req.msg)
 
-    def _on_rx(self, m: Modem, frame: Frame, t: float, dist: float) -> None:
-        ep = self.serving(m.id)
+    def _on_rx(self, dev: str, frame: Frame, t: float, dist: float) -> None:
+        ep = self.serving(dev)
         if ep is None:
             return
         data = frame.data if frame.data is not None else bytes(frame.payload)
         if not ep.rx(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, dist, frame.msg):
-            self._edge_drop(m.id, "rx")
+            self._edge_drop(dev, "rx")
 
-    def _on_status(self, m: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
+    def _on_status(self, dev: str, frame: Frame, event: str, reason: str | None, t: float) -> None:
         tag = frame.tag if isinstance(frame.tag, int) and not isinstance(frame.tag, bool) else None
-        leaving = self._leaving.get(m)
+        leaving = self._leaving.get(dev)
         if leaving is not None:
             # a simulated modem handed to a real driver: what it still held ends here, said once
             if event == "dropped" and reason == "removed":
                 reason = "swapped"
-            leaving.put(self._put_status(m.id), wire.encode_status(tag, event, reason, t, frame.seq), "status")
+            leaving.put(self._put_status(dev), wire.encode_status(tag, event, reason, t, frame.seq), "status")
             return
-        ep = self.serving(m.id)
-        if ep is None or ep.modem is not m:
+        ep = self.serving(dev)
+        if ep is None:
             return
         if not ep.status(tag, event, reason, t, frame.seq):
-            self._edge_drop(m.id, "status")
+            self._edge_drop(dev, "status")
 
     def _edge_drop(self, dev: str, kind: str) -> None:
         self.counters[f"edge_{kind}"] += 1
@@ -521,69 +449,6 @@ class Broker:
             pub = pubs.get(r[2])
             if pub is not None and not out.put(pub.put, wire.pack(row_record(t9, r)), "trace"):
                 self.counters["edge_trace"] += 1
-
-    def _pull_poses_now(self) -> None:
-        """(engine, idle hook) Apply the pose samples that have arrived by now."""
-        self._pull_poses(self.clock.now())
-
-    def _pull_poses(self, t: float) -> None:
-        """(engine; PoseTable.pull) Apply the newest pose sample of each vehicle that arrived by
-        simulation time t, as of its arrival time.  A sample superseded by a newer one of the same vehicle
-        before the geometry was needed is counted (`poses_superseded`), not decoded: the newer one
-        replaces it entirely (position, velocity, time)."""
-        self._take_poses()
-        got = self._poses_in.take(t)
-        if got:
-            for key, n, stamp, raw in got:
-                self._apply_pose(key, n, stamp, raw)
-            if self._poses_in.refused:
-                self.counters["pose_refused"] = self._poses_in.refused
-
-    def _pose_verdict(self, key: str) -> tuple[str | None, str | None]:
-        """(vehicle, None) if samples on `key` position a vehicle, else (name, the counter of refusals)."""
-        got = self._pose_keys.get(key)
-        if got is not None:
-            return got
-        k = parse(key)
-        if k is None or k.kind != "pose" or k.world != self.keys.world:
-            got = (None, "pose_bad_key")
-        else:
-            v = self.net.vehicles.get(k.name)
-            if v is None:
-                got = (k.name, "pose_unknown")
-            elif v.pose_source != "zenoh":       # another broker of this world publishes it too: expected
-                got = (k.name, "pose_peer" if self.channels is not None else "pose_ignored")
-            else:
-                got = (k.name, None)
-        if len(self._pose_keys) < KEY_CACHE:
-            self._pose_keys[key] = got
-        return got
-
-    def _apply_pose(self, key: str, n: int, stamp: float, raw: bytes | None) -> None:
-        name, refused = self._pose_verdict(key)
-        if refused is not None:
-            self.counters[refused] += n
-            if refused == "pose_unknown":
-                self.warn("pose_unknown", "pose for unknown vehicle %r ignored", name)
-            elif refused == "pose_ignored":
-                self.warn(f"pose_ignored:{name}", "pose for %s ignored: the scene drives it (poseSource scene)",
-                          name)
-            return                               # pose_peer: counted, no warning (two would flood)
-        if n > 1:
-            self.counters["poses_superseded"] += n - 1
-        try:
-            if raw is None:
-                raise wire.CodecError("toolarge", f"pose sample over {wire.MAX_SMALL_MESSAGE} bytes")
-            pose = wire.decode_pose(raw)
-        except wire.CodecError as e:
-            self.counters["pose_" + e.reason] += 1
-            self.warn(f"pose_bad:{name}", "pose for %s ignored (%s): %s", name, e.reason, e.detail)
-            return
-        self.counters["poses"] += 1
-        self.net.move(name, pose.p, pose.v, t=stamp)
-        if name in self._waiting_pose:
-            self._waiting_pose.discard(name)
-            log.info("vehicle %s: first pose %s", name, list(pose.p))
 
     def _driver_change(self, key: str, present: bool) -> None:
         k = parse(key)
@@ -617,7 +482,7 @@ class Broker:
         if ep.token is not None:
             self._undeclare(ep.token)
             ep.token = None
-        self._leaving[m] = self._misc             # see _on_status
+        self._leaving[dev] = self._misc           # see _on_status
         while m.fifo:
             m.drop(m.fifo_pop(), "swapped")
         self.hil.swapped_out(dev, m.vehicle, m.cfg)
@@ -627,140 +492,8 @@ class Broker:
         self.counters["swap_out"] += 1
         log.info("%s: a real driver took over; the simulated modem left the channel", dev)
 
-    def edge_summary(self) -> dict[str, Any]:
-        """Per modem: messages lost at the edge (outbox full, by kind; ingress lane full) and the ingress
-        delay (count, mean, max wall s); plus the trace and misc outboxes.  For the run summary."""
-        out: dict[str, Any] = {}
-        for dev, lane in self.lanes.items():
-            ob = self.outboxes.get(dev)
-            out[dev] = {"lost": dict(ob.dropped) if ob is not None else {}, "refused": lane.refused,
-                        "stalled": dict(ob.stalled) if ob is not None else {},
-                        "stalled_max": ob.stalled_max if ob is not None else 0.0,
-                        "ingress_n": lane.n, "ingress_mean": lane.delay_sum / lane.n if lane.n else 0.0,
-                        "ingress_max": lane.delay_max}
-        for name in ("*trace", "*misc"):
-            ob = self.outboxes.get(name)
-            if ob is not None and (ob.dropped or ob.stalled):
-                out[name] = {"lost": dict(ob.dropped), "stalled": dict(ob.stalled), "stalled_max": ob.stalled_max}
-        return out
 
-    # -- queries ---------------------------------------------------------------------------------
-    def info(self, dev: str) -> dict[str, Any]:
-        """The `info` reply of a served modem: configuration, kind and live state."""
-        m = self.endpoints[dev].modem
-        net = self.net
-        cfg = m.cfg
-        self._pull_poses(net.sched.now)
-        known = bool(net.poses.known[m.vehicle_index])
-        pos = net.poses.points(net.sched.now)[m.vehicle_index] if known else None
-        ep = self.endpoints[dev]
-        counters = dict(m.counters)
-        counters.update(ep.bad)
-        return ep.info({
-            "address": m.address, "vehicle": m.vehicle,
-            "tx_channel": m.tx_channel.id, "rx_channel": m.rx_channel.id, "bitrate": m.bitrate,
-            # the tx channel's delay law, the parameters phy.channel.Channel computes delays with
-            "prop": {"min": m.tx_channel.min_prop_s, "per_m": m.tx_channel.prop_s_per_m},
-            "rx_prop": {"min": m.rx_channel.min_prop_s, "per_m": m.rx_channel.prop_s_per_m},
-            "header_bytes": m.header_bytes, "max_frame_bytes": cfg.max_frame_bytes,
-            "tx_framing": cfg.tx_framing, "rx_framing": cfg.rx_framing or cfg.tx_framing,
-            "fifo_capacity": m.fifo_cap, "fifo_bytes": m.fifo_bytes, "fifo_frames": len(m.fifo),
-            "phy_busy": m.phy_busy, "mac": cfg.mac.name, "pose_known": known,
-            "position": None if pos is None else [float(x) for x in pos],
-            "counters": counters, "config": cfg.model_dump(mode="json", exclude={"line"}),
-            "epoch": self.clock.wall_epoch(), "speed": self.clock.speed,
-            # + the edge (docs/runtime.md): messages lost because their consumer did not keep up, and the
-            # ingress delay (wall s from the tx put reaching the broker to the engine taking it)
-        }, kind="sim", world=self.keys.world, t=net.sched.now, ingress=ep.lane.stats())
 
-    def _answer_info(self, query: zenoh.Query) -> None:
-        with query:
-            ke = query.key_expr
-            for dev in list(self.endpoints):
-                if dev in self.real:
-                    continue
-                key = self.keys.info(dev)
-                if ke.intersects(key):
-                    query.reply(key, wire.pack(self.info(dev)))
 
-    def _answer_control(self, query: zenoh.Query, raw: Any) -> None:
-        with query:
-            ke = query.key_expr
-            op = str(ke).rsplit("/", 1)[-1]
-            if not is_chunk(op) or not ke.intersects(self.keys.control(op)):
-                op, reply = "?", {"ok": False, "error": "name one operation: control/<op>"}
-            else:
-                if raw is not None and not isinstance(raw, bytes):
-                    reply = {"ok": False, "error": f"request larger than {wire.MAX_SMALL_MESSAGE} bytes"}
-                else:
-                    try:
-                        reply = self.control.handle(op, wire.decode_request(raw))
-                    except wire.CodecError as e:
-                        reply = {"ok": False, "error": f"{e.reason}: {e.detail}"}
-            if not reply.get("ok"):
-                self.warn(f"control:{op}", "control/%s refused: %s", op, reply.get("error"))
-            if op == "?":
-                query.reply_err(wire.pack(reply))
-            else:
-                query.reply(self.keys.control(op), wire.pack(reply))
 
-    # -- periodic publications (engine events) ---------------------------------------------------
-    def _schedule_poses(self) -> None:
-        net = self.net
-        served_vehicles = {m.vehicle for m in net.modems.values()}
-        by_rate: dict[float, list[str]] = {}
-        for v in net.vehicles.values():
-            if v.pose_source != "scene":
-                continue
-            if self.channels is not None and v.name not in served_vehicles:
-                continue
-            by_rate.setdefault(v.pose_rate_hz, []).append(v.name)
-            self._pose_pubs[v.name] = self.session.declare_publisher(self.keys.pose(v.name))
-        t0 = net.sched.now
-        for rate, names in by_rate.items():
-            net.sched.at(t0, self._pose_tick, names, 1.0 / rate, t0, 0)
 
-    def _pose_tick(self, names: list[str], period: float, t0: float, n: int) -> None:
-        """Marks the poses of `names` due; the idle hook publishes them (inline if the last batch is
-        still waiting: an engine that is never idle still publishes)."""
-        if self._due_poses:
-            self._publish_due()
-        self._due_poses.append(names)
-        now = self.net.sched.now
-        nxt = t0 + (n + 1) * period
-        while nxt <= now:       # fell behind (paused, slow machine): skip, do not burst
-            n += 1
-            nxt = t0 + (n + 1) * period
-        self.net.sched.at(nxt, self._pose_tick, names, period, t0, n + 1)
-
-    def _publish_due(self) -> None:
-        """Idle hook: the periodic publications that are due (poses, clock)."""
-        if self._due_poses:
-            net = self.net
-            pos = net.poses.points(net.sched.now)      # (not `positions`: no array, no numpy import)
-            idx = net.poses.index
-            now = net.sched.now
-            batches, self._due_poses = self._due_poses, []
-            for names in batches:
-                for name in names:
-                    pub = self._pose_pubs.get(name)
-                    if pub is not None:
-                        self._misc.put(pub.put, wire.encode_pose(pos[idx[name]], t=now), "pose")
-        if self._clock_due:
-            self._clock_due = False
-            self.publish_clock()
-
-    def clock_sample(self) -> dict[str, Any]:
-        c = self.clock
-        return {"t": self.net.sched.now if c.paused else c.now(), "epoch": c.wall_epoch(), "speed": c.speed,
-                "paused": c.paused}
-
-    def publish_clock(self) -> None:
-        if self._clock_pub is not None:
-            self._misc.put(self._clock_pub.put, wire.pack(self.clock_sample()), "clock")
-
-    def _clock_tick(self) -> None:
-        if self._clock_due:
-            self.publish_clock()
-        self._clock_due = True
-        self.net.sched.after(1.0 / self.clock_rate_hz, self._clock_tick)

@@ -6,20 +6,14 @@ world freezes them and `uwsimnet run --speed` speeds them up with it."""
 from __future__ import annotations
 
 import contextlib
-import math
-import time
 from typing import Any
 
 import zenoh
 from uwsimnet_gli import wire
 from uwsimnet_gli.wire import Keys
+from uwsimnet_gli.world import is_clock, sim_time
 
-
-def sim_time(sample: dict[str, Any]) -> float:
-    """Simulation time now from a clock sample."""
-    if sample.get("paused") or not isinstance(sample.get("epoch"), int | float):
-        return float(sample["t"])
-    return (time.time() - float(sample["epoch"])) * float(sample.get("speed") or 1.0)
+__all__ = ["WorldClock", "sim_time"]
 
 
 class WorldClock:
@@ -32,10 +26,8 @@ class WorldClock:
     def _on_sample(self, sample: zenoh.Sample) -> None:
         with contextlib.suppress(Exception):
             m = wire.unpack(sample.payload.to_bytes(), wire.MAX_SMALL_MESSAGE)
-            t, speed = m["t"], m.get("speed", 1.0)
-            if not (isinstance(t, int | float) and math.isfinite(t) and isinstance(speed, int | float) and speed > 0):
-                return
-            self._last = m
+            if is_clock(m):
+                self._last = m
 
     def now(self) -> float | None:
         """Simulation time now; None before the first clock sample."""

@@ -295,3 +295,26 @@ class Latest:
 
     def __len__(self) -> int:
         return len(self._pending)
+
+
+class Throttle:
+    """At most `burst` log lines per key, then one per `every` seconds with the count suppressed."""
+
+    def __init__(self, burst: int = 5, every: float = 5.0, logger: logging.Logger = log) -> None:
+        self.log = logger
+        self.burst = burst
+        self.every = every
+        self._n: Counter[str] = Counter()
+        self._last: dict[str, float] = {}
+        self._hidden: Counter[str] = Counter()
+
+    def __call__(self, key: str, msg: str, *args: Any) -> None:
+        self._n[key] += 1
+        now = time.monotonic()
+        if self._n[key] <= self.burst or now - self._last.get(key, 0.0) >= self.every:
+            hidden = self._hidden.pop(key, 0)
+            suffix = f" ({hidden} similar messages suppressed)" if hidden else ""
+            self.log.warning(msg + suffix, *args)
+            self._last[key] = now
+        else:
+            self._hidden[key] += 1

@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import errno
 import logging
-import os
 import signal
 import sys
 import threading
@@ -30,46 +28,62 @@ from .zenoh_flags import add_zenoh_flags, check_access, client_session, configur
 WORLD_HELP = "world name (default: the only one that answers)"
 
 
+def common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--id", required=True, help="the modem's dccommsId")
+    add_zenoh_flags(p, world=WORLD_HELP)
+
+
+def _plugin_args(kind: str, args: argparse.Namespace) -> tuple[Any, argparse.Namespace]:
+    """The plug-in named on the command line and its flags parsed by a parser it filled."""
+    from ..drivers.registry import resolve
+
+    name = args.driver if kind == "driver" else args.emulator
+    plugin = resolve(kind, name)
+    p = argparse.ArgumentParser(prog=f"uwsimnet {'driver' if kind == 'driver' else 'emulate'} {name}",
+                                description=plugin.help)
+    plugin.arguments(p)
+    common(p)
+    ns = p.parse_args(args.rest)
+    for k, v in vars(args).items():
+        if k != "rest" and not hasattr(ns, k):
+            setattr(ns, k, v)
+    if plugin.check is not None:
+        plugin.check(ns)
+    return plugin, ns
+
+
+class _Context:
+    """What a driver plug-in may ask (drivers/registry.DriverContext)."""
+
+    def __init__(self, session: Any, world: str, modem: str) -> None:
+        self.session, self.world, self.id = session, world, modem
+
+    def info(self) -> dict[str, Any] | None:
+        from uwsimnet_gli.wire import Keys
+
+        from ..drivers.zenoh_backend import query_info
+
+        return query_info(self.session, Keys(self.world), self.id)
+
+
 def add_commands(sub: Any) -> None:
     """Register the subcommands on `uwsimnet`'s subparsers."""
-    def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--id", required=True, help="the modem's dccommsId")
-        add_zenoh_flags(p, world=WORLD_HELP)
 
-    d = sub.add_parser("driver", help="serve a modem id with a real modem (HIL swap)")
-    dsub = d.add_subparsers(dest="driver", required=True)
-    de = dsub.add_parser("evologics", help="EvoLogics S2C modem, AT commands over TCP")
-    de.add_argument("--host", required=True)
-    de.add_argument("--port", type=int, default=9200)
-    de.add_argument("--mode", choices=["auto", "im", "burst"], default="auto")
-    de.add_argument("--link-mode", choices=["command", "data"], default="command",
-                    help="speak the modem's command mode, or data mode (ATO, +++AT escapes)")
-    common(de)
-    de.set_defaults(fn=cmd_driver)
-    ds = dsub.add_parser("serial", help="transparent serial radio carrying dccomms frames")
-    ds.add_argument("--device", required=True, help="serial device or pty path")
-    ds.add_argument("--address", type=int, help="the radio's address (default: the simulated modem's)")
-    ds.add_argument("--baud", type=int, default=9600, help="0: leave the line speed alone (pty)")
-    ds.add_argument("--framing", metavar="BUILDER", help="dccomms packet builder on the line (default: the"
-                    " modem's txPacketBuilder in the scene, else DataLinkFrameBuilderCRC16)")
-    common(ds)
-    ds.set_defaults(fn=cmd_driver)
+    from ..drivers.registry import BUILTIN_DRIVERS, BUILTIN_EMULATORS, DRIVER_GROUP, EMULATOR_GROUP
 
-    e = sub.add_parser("emulate", help="make a simulated modem look like a real device")
-    esub = e.add_subparsers(dest="emulator", required=True)
-    ee = esub.add_parser("evologics", help="EvoLogics S2C AT command server on TCP")
-    ee.add_argument("--port", type=int, default=9200)
-    ee.add_argument("--host", default="127.0.0.1", help="address to listen on")
-    ee.add_argument("--interpreter", choices=["at", "net"], default="at",
-                    help="at: data and command mode, AT?MODE answers AT; net: command mode only, NET (DUNE)")
-    common(ee)
-    ee.set_defaults(fn=cmd_emulate)
-    es = esub.add_parser("serial", help="pty speaking dccomms DataLinkFrames (transparent serial radio)")
-    es.add_argument("--link", metavar="PATH", help="also make a symlink PATH to the pty (like a udev name)")
-    es.add_argument("--framing", metavar="BUILDER", help="dccomms packet builder on the pty (default: the"
-                    " modem's txPacketBuilder in the scene, else DataLinkFrameBuilderCRC16)")
-    common(es)
-    es.set_defaults(fn=cmd_emulate)
+    # the device's own flags come from its plug-in (drivers/registry.py), parsed once the name is known
+    d = sub.add_parser("driver", help="serve a modem id with a real modem (HIL swap)",
+                       epilog=f"built-in: {', '.join(BUILTIN_DRIVERS)}; plug-ins: entry points {DRIVER_GROUP}."
+                              " `uwsimnet driver NAME --help` lists NAME's flags.")
+    d.add_argument("driver", metavar="NAME", help="the driver")
+    d.add_argument("rest", nargs=argparse.REMAINDER, help="its flags, --id and the Zenoh flags")
+    d.set_defaults(fn=cmd_driver)
+    e = sub.add_parser("emulate", help="make a simulated modem look like a real device",
+                       epilog=f"built-in: {', '.join(BUILTIN_EMULATORS)}; plug-ins: entry points {EMULATOR_GROUP}."
+                              " `uwsimnet emulate NAME --help` lists NAME's flags.")
+    e.add_argument("emulator", metavar="NAME", help="the emulator")
+    e.add_argument("rest", nargs=argparse.REMAINDER, help="its flags, --id and the Zenoh flags")
+    e.set_defaults(fn=cmd_emulate)
 
     b = sub.add_parser("bridge", help="a modem for applications that cannot speak Zenoh")
     bsub = b.add_subparsers(dest="bridge", required=True)
@@ -152,33 +166,15 @@ def _wait_for_signal() -> None:
 
 
 def cmd_driver(args: argparse.Namespace) -> int:
-    from uwsimnet_gli.wire import Keys
-
-    from ..drivers.zenoh_backend import query_info
     from ..drivers.zenoh_host import DriverHost
 
+    plugin, args = _plugin_args("driver", args)
     _log()
     _precheck(args, "driver", (args.id,))
     with _session(args) as s:
         world = _world(s, args)
         check_access(args, "driver", world, (args.id,))
-        if args.driver == "evologics":
-            from ..drivers.evologics import EvoLogicsDriver
-
-            drv: Any = EvoLogicsDriver(args.host, args.port, args.id, mode=args.mode, link_mode=args.link_mode)
-        else:
-            from ..drivers.serial_radio import SerialRadioDriver
-
-            address, framing = args.address, _framing_arg(args.framing)
-            if address is None or framing is None:
-                info = query_info(s, Keys(world), args.id)
-                if info is None and address is None:
-                    raise UserError(f"{args.id}: no simulated modem answers in world {world!r}; give --address")
-                if address is None:
-                    address = int(info["address"])
-                if framing is None and info is not None:
-                    framing = info.get("tx_framing") or None
-            drv = SerialRadioDriver(args.device, address, args.id, baud=args.baud or None, framing=framing)
+        drv = plugin.open(args, _Context(s, world, args.id))
         if not drv.open(wait=10.0):
             drv.close()
             raise UserError(f"{args.id}: the device did not open ({getattr(drv, 'last_error', '')})")
@@ -219,64 +215,14 @@ def _serve(args: argparse.Namespace, what: str, start: Any) -> int:
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
-    from ..drivers.emulators import EvoLogicsEmulator
-
-    if args.emulator == "serial":
-        return _emulate_serial(args)
-
-    def start(be: Any) -> tuple[Any, str]:
-        emu = EvoLogicsEmulator(be, args.host, args.port, interpreter=args.interpreter)
-        try:
-            host, port = emu.start()
-        except OSError as e:
-            emu.close()
-            raise _listen_error("emulate evologics", args.host, args.port, e) from None
-        return emu, f"{host}:{port}"
-
-    return _serve(args, "emulator evologics", start)
-
-
-def _framing_arg(name: str | None) -> str | None:
-    """A --framing value checked (one-line error naming the known builders)."""
-    if not name:
-        return None
-    from ..phy.framing import builder
-
-    try:
-        return builder(name).name
-    except ValueError as e:
-        raise UserError(f"--framing: {e}") from None
-
-
-def _listen_error(what: str, host: str, port: int, e: OSError) -> UserError:
-    why = e.strerror or " ".join(str(e).split())
-    hint = " (another emulator, bridge or modem server holds it? give another --port, 0 for a free one)" \
-        if e.errno == errno.EADDRINUSE else ""
-    return UserError(f"{what}: cannot listen on {host}:{port}: {why}{hint}")
-
-
-def _emulate_serial(args: argparse.Namespace) -> int:
-    """`emulate serial`: a pty whose other end speaks dccomms frames, on simulated modem args.id."""
-    from ..drivers.emulators import SerialRadioEmulator
-
-    link = args.link
-    if link and os.path.lexists(link) and not os.path.islink(link):     # the emulator replaces old links only
-        raise UserError(f"--link {link}: exists and is not a symlink; not replacing it")
-
-    def start(be: Any) -> tuple[Any, str]:
-        emu = SerialRadioEmulator(be, link=link, framing=_framing_arg(args.framing))
-        try:
-            emu.start()
-        except OSError as e:
-            emu.close()
-            raise UserError(f"emulate serial: cannot create the pty{f' or --link {link}' if link else ''}: {e}"
-                            ) from None
-        return emu, emu.path + (f" link {link}" if link else "")
-
-    return _serve(args, "emulator serial", start)
+    plugin, args = _plugin_args("emulator", args)
+    return _serve(args, f"emulator {args.emulator}", lambda be: plugin.start(args, be))
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:
+    from ..drivers._aio import listen_error
+    from ..drivers.dccomms import framing_arg
+
     def start(be: Any) -> tuple[Any, str]:
         if args.bridge == "socket":
             from ..bridges.socket_bridge import SocketBridge
@@ -287,15 +233,15 @@ def cmd_bridge(args: argparse.Namespace) -> int:
             except OSError as e:
                 udp = getattr(br, "_server", None) is not None        # TCP was bound: the UDP port failed
                 br.close()
-                raise _listen_error("bridge socket", args.host, args.udp_port if udp else args.port, e) from None
+                raise listen_error("bridge socket", args.host, args.udp_port if udp else args.port, e) from None
             return br, f"tcp {args.host}:{br.tcp_port}" + (f" udp {br.udp_port}" if br.udp_port else "")
         from ..bridges import posix_mq
         from ..bridges.mq_bridge import MqBridge
 
         if not posix_mq.available():
             raise UserError("POSIX message queues are not available on this system")
-        for name in (args.framing, args.rx_framing):
-            _framing_arg(name)
+        framing_arg(args.framing)
+        framing_arg(args.rx_framing, "--rx-framing")
         br = MqBridge(be, args.dccomms_id or args.id, framing=args.framing, rx_framing=args.rx_framing)
         try:
             br.start()
@@ -311,6 +257,7 @@ def cmd_bridge_unet(args: argparse.Namespace) -> int:
     from uwsimnet_gli import World
 
     from ..bridges.unet_gateway import UnetGateway
+    from ..drivers._aio import listen_error
 
     _log()
     ids = tuple(dict.fromkeys(args.id or ()))          # --all: () = every modem, for the access check
@@ -333,7 +280,7 @@ def cmd_bridge_unet(args: argparse.Namespace) -> int:
                 try:
                     gw.start()
                 except OSError as e:
-                    raise _listen_error("bridge unet", args.host, port, e) from None
+                    raise listen_error("bridge unet", args.host, port, e) from None
                 except RuntimeError as e:
                     raise UserError(str(e)) from None
                 print(f"uwsimnet: bridge unet ready for {world}/{dev} on tcp {args.host}:{gw.port}"

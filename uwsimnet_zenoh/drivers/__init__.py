@@ -1,10 +1,10 @@
-"""Real modem drivers, protocol cores and emulators (docs/drivers.md).
+"""Real modem drivers and device emulators, grouped by device (docs/drivers.md).
 
-* sans-IO protocol cores: `evologics_at` (EvoLogics S2C AT commands, both ends), `dccomms_framing`
-  (DataLinkFrame, CRC16 XMODEM, resynchronising decoder, GLI queue messages);
-* the driver SDK `base.Driver` and two drivers: `evologics.EvoLogicsDriver` (TCP),
-  `serial_radio.SerialRadioDriver` (serial device or pty);
+* the driver port `registry`: names to driver and emulator plug-ins (built-ins, entry points of groups
+  `uwsimnet.drivers` / `uwsimnet.emulators`) that `uwsimnet driver` and `uwsimnet emulate` read;
+* `evologics/`: the EvoLogics S2C driver (TCP) and AT emulator; `dccomms/`: the dccomms serial radio driver
+  and its pty emulator.  The formats they speak live below, in formats/;
+* the driver SDK `base.Driver`; `zenoh_host`: a driver serving a modem id on Zenoh (HIL swap);
 * `backend`: the modem backend interface emulators and bridges sit on; `sim_backend`: an in-process
-  simulation as backends;
-* `emulators`: an EvoLogics AT TCP server and a framed serial pty backed by a simulated modem.
+  simulation as backends; `zenoh_backend`: a simulated modem of a running broker.
 """

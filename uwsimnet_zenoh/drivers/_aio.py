@@ -10,12 +10,15 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import errno
 import logging
 import os
 import socket
 import threading
 from collections.abc import Callable, Coroutine
 from typing import Any
+
+from ..errors import UserError
 
 log = logging.getLogger("uwsimnet.drivers")
 
@@ -264,3 +267,11 @@ class TcpServer:
         with contextlib.suppress(Exception):
             self.loop.remove_reader(self.sock.fileno())
         self.sock.close()
+
+
+def listen_error(what: str, host: str, port: int, e: OSError) -> UserError:
+    """One line for a port that cannot be served."""
+    why = e.strerror or " ".join(str(e).split())
+    hint = " (another emulator, bridge or modem server holds it? give another --port, 0 for a free one)" \
+        if e.errno == errno.EADDRINUSE else ""
+    return UserError(f"{what}: cannot listen on {host}:{port}: {why}{hint}")

@@ -7,8 +7,8 @@ of each frame and hands up what it received.  That is `ModemBackend`.  Two imple
 
 * `sim_backend.SimBackend`: a modem of an in-process `Network` (this part; used by the tests and by
   `uwsimnet emulate` when the emulator runs the scene itself);
-* a Zenoh backend (part B): `modem/<id>/tx` out, `modem/<id>/rx` and `/status` in, `trace/<ch>` for
-  delivery outcomes (`DeliveryTracker`).
+* `zenoh_backend.ZenohBackend`: a modem served by a broker, through the client library's
+  `uwsimnet_gli.Modem` (delivery outcomes from the `trace/<ch>` records of the addressee's events).
 
 Callbacks run on the backend's thread (the engine thread, a Zenoh thread): they must not block.
 
@@ -22,7 +22,6 @@ acknowledgement would take to come back.
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -85,6 +84,8 @@ class BackendFrame:
     prop_time: float | None = None
     velocity: float | None = None
     msg: Message | None = None
+    aseq: int | None = None
+    """The sending application's own sequence number (the wire's `aseq`), None if it set none."""
 
 
 @dataclass(frozen=True)
@@ -125,39 +126,6 @@ def detach(backend: ModemBackend, frame_cb: FrameCallback | None = None,
     for lst, fn in ((backend.on_frame, frame_cb), (backend.on_status, status_cb)):
         if fn is not None and fn in lst:
             lst.remove(fn)
-
-
-class DeliveryTracker:
-    """Learns from trace records (docs/trace-format.md) whether unicast frames reached their addressee.
-
-    `watch(src_address, seq, sender_dev, fn)` then feed every trace record to `on_trace`; `fn(event,
-    reason, t, dist)` is called once with `delivered` (an `rx` record at another device) or `lost` (a
-    `drop` record at another device).  Drops at the sender (fifo, retry, ...) are not outcomes here:
-    the sender's own status says those.  At most `limit` frames are watched (oldest forgotten)."""
-
-    def __init__(self, limit: int = 10000) -> None:
-        self.limit = limit
-        self._watch: OrderedDict[tuple[int, int], tuple[str, Callable[..., None]]] = OrderedDict()
-
-    def watch(self, src: int, seq: int, sender_dev: str, fn: Callable[[str, str | None, float, float | None],
-                                                                      None]) -> None:
-        self._watch[(src, seq)] = (sender_dev, fn)
-        while len(self._watch) > self.limit:
-            self._watch.popitem(last=False)
-
-    def forget(self, src: int, seq: int) -> None:
-        self._watch.pop((src, seq), None)
-
-    def on_trace(self, rec: dict[str, Any]) -> None:
-        ev = rec.get("ev")
-        if ev not in ("rx", "drop") or rec.get("kind", "data") != "data" or rec.get("implicit"):
-            return
-        key = (rec.get("src"), rec.get("seq"))
-        hit = self._watch.get(key)  # type: ignore[arg-type]
-        if hit is None or rec.get("dev") == hit[0]:
-            return
-        del self._watch[key]  # type: ignore[arg-type]
-        hit[1]("delivered" if ev == "rx" else "lost", rec.get("reason"), float(rec.get("t", 0.0)), rec.get("dist"))
 
 
 # -- what a device would measure ----------------------------------------------------------------------

@@ -14,9 +14,10 @@ network goes through the clock's inbox and every callback runs on the engine thr
 
 Each received frame is decorated with what a device would measure: the distance between the two
 vehicles when the frame left (from the pose table), the channel's propagation time for it, the
-relative radial velocity, the sender's bitrate.  Unicast frames sent through a backend are followed
-to their addressee through the trace (`DeliveryTracker`): the sender's backend then reports
-`delivered` or `lost`.
+relative radial velocity, the sender's bitrate.  The world listens to the network's output port
+(trace/tracer.py) once for all its backends: the rx and status events of their modems, and the addressee's
+outcome of each unicast frame a backend sent (its `rx`, or its `drop` at the receiver), which the sender's
+backend reports as `delivered` or `lost`.
 """
 
 from __future__ import annotations
@@ -30,9 +31,39 @@ from ..kernel.frame import BROADCAST, Frame
 from ..kernel.realtime import RealtimeClock
 from ..phy.modem import Modem
 from ..scene.model import Scene
-from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, Message, StatusCallback
+from ..trace.tracer import FRAME_EVENTS, Listener
+from .backend import BackendFrame, BackendStatus, FrameCallback, Message, StatusCallback
 
 log = logging.getLogger("uwsimnet.drivers.sim")
+PENDING = 10000
+"""Unicast frames per backend whose addressee's outcome is awaited (the oldest forgotten past it)."""
+
+
+class _Output(Listener):
+    """The world on its network's output port: each event of a modem with a backend to that backend,
+    and the receivers' outcomes of frames sent through a backend to the sender's."""
+
+    def __init__(self, world: SimWorld) -> None:
+        self.backends = world.backends
+
+    def event(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None, fifo: int | None,
+              dist: Any, implicit: Any) -> None:
+        if ev == "rx" or ev == "drop":
+            if frame.dev != dev and frame.kind == "data" and not implicit:
+                sender = self.backends.get(frame.dev)     # (a frame's dev is its transmitter)
+                if sender is not None:
+                    sender._outcome(frame, "delivered" if ev == "rx" else "lost", reason, t, dist)
+            if ev == "drop" or frame.kind != "data":
+                return
+        elif ev in FRAME_EVENTS:
+            return
+        be = self.backends.get(dev)
+        if be is None:
+            return
+        if ev == "rx":
+            be._on_rx(frame, t)
+        else:
+            be._on_status(frame, ev, reason, t)
 
 
 class SimWorld:
@@ -44,9 +75,8 @@ class SimWorld:
         self.mode = clock
         self.clock: RealtimeClock | None = (RealtimeClock(self.net.sched, speed=speed, spin=0.0)
                                             if clock == "realtime" else None)
-        self.tracker = DeliveryTracker()
-        self.net.tracer.add(self.tracker.on_trace)
         self.backends: dict[str, SimBackend] = {}
+        self.net.tracer.listen(_Output(self), statuses=True)
         self._started = False
 
     # -- lifecycle ----------------------------------------------------------------------------------
@@ -123,9 +153,7 @@ class SimBackend:
         self.on_frame: list[FrameCallback] = []
         self.on_status: list[StatusCallback] = []
         self.counters = {"sent": 0, "received": 0}
-        self._refused = False
-        modem.on_receive.append(self._on_rx)
-        modem.on_status.append(self._on_status)
+        self._pending: dict[int, Frame] = {}     # id(frame) -> frame: unicast frames awaiting their outcome
 
     def now(self) -> float:
         return self.world.now()
@@ -142,34 +170,35 @@ class SimBackend:
                 "rx_framing": getattr(m.cfg, "rx_framing", None) or getattr(m.cfg, "tx_framing", None)}
 
     def close(self) -> None:
-        m = self.modem
-        for lst, fn in ((m.on_receive, self._on_rx), (m.on_status, self._on_status)):
-            if fn in lst:
-                lst.remove(fn)
+        if self.world.backends.get(self.id) is self:
+            del self.world.backends[self.id]
 
     # -- engine thread ------------------------------------------------------------------------------
     def _send(self, dst: int, data: bytes, tag: Any, msg: Message | None) -> None:
         m = self.modem
         self.counters["sent"] += 1
-        self._refused = False
         frame = m.send(dst, len(data), data=data, tag=tag, msg=None if msg is None else msg.to_wire())
-        if dst != BROADCAST and not self._refused:        # a frame refused at once has no outcome to wait for
-            self.world.tracker.watch(m.address, frame.seq, m.id,
-                                     lambda ev, reason, t, dist, f=frame: self._outcome(f, ev, reason, t, dist))
+        if dst != BROADCAST and frame.final is None:      # a frame refused at once has no outcome to wait for
+            pending = self._pending
+            pending[id(frame)] = frame
+            if len(pending) > PENDING:
+                del pending[next(iter(pending))]
 
     def _outcome(self, frame: Frame, event: str, reason: str | None, t: float, dist: float | None) -> None:
+        """(the port) The addressee's outcome of a frame: reported once, if this backend sent it."""
+        if self._pending.pop(id(frame), None) is not frame:
+            return
         prop = None
         if dist is not None:
             ch = self.modem.tx_channel
             prop = ch.min_prop_s + ch.prop_s_per_m * float(dist)
         self._emit_status(BackendStatus(frame.tag, event, reason, t, frame.seq, prop))
 
-    def _on_status(self, modem: Modem, frame: Frame, event: str, reason: str | None, t: float) -> None:
+    def _on_status(self, frame: Frame, event: str, reason: str | None, t: float) -> None:
         if frame.kind != "data":
             return
         if event == "dropped":
-            self._refused = True
-            self.world.tracker.forget(frame.src, frame.seq)
+            self._pending.pop(id(frame), None)
         self._emit_status(BackendStatus(frame.tag, event, reason, t, frame.seq))
 
     def _emit_status(self, st: BackendStatus) -> None:
@@ -179,14 +208,15 @@ class SimBackend:
             except Exception:  # noqa: BLE001 - a listener must not break the engine
                 log.exception("%s: status listener raised", self.id)
 
-    def _on_rx(self, modem: Modem, frame: Frame, t: float, _dist: float) -> None:
+    def _on_rx(self, frame: Frame, t: float) -> None:
+        modem = self.modem
         self.counters["received"] += 1
         dist, prop, vel = self.world.link(frame.dev, modem, frame.t_tx)
         sender = self.world.net.modems.get(frame.dev)
         data = frame.data if frame.data is not None else bytes(frame.payload)
         bf = BackendFrame(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, frame.size,
                           sender.bitrate if sender is not None else None, dist, prop, vel,
-                          Message.from_wire(frame.msg))
+                          Message.from_wire(frame.msg), (frame.msg or {}).get("aseq"))
         for cb in list(self.on_frame):
             try:
                 cb(bf)

@@ -4,11 +4,13 @@
         be = ZenohBackend(s, "acoustic-apps", "alpha-modem")     # asks the modem's `info` first
         emu = EvoLogicsEmulator(be, port=9200).start()
 
-`send` puts on `modem/<id>/tx` (with an integer tag of its own, mapped back to the caller's tag);
-`modem/<id>/rx` and `/status` come back as `BackendFrame` / `BackendStatus`.  Unicast frames are followed
-to their addressee through `trace/<channel>` (`DeliveryTracker`, keyed by the `seq` that status events
-carry), which yields `delivered` / `lost`, with the propagation time over the trace record's distance
-(`prop_time`, the tx channel's law from `info`).  `now()` is simulation time from the broker's `clock` samples.
+A thin adapter over the client library's `uwsimnet_gli.Modem` (what any application uses): `send` is its
+`send` (with an integer tag of its own, mapped back to the caller's tag); its rx frames and statuses come
+back as `BackendFrame` / `BackendStatus`; `now()` is its world's simulation time (`World.sim_time`, from the
+broker's `clock` samples).  The addressee's outcome of a unicast frame (`delivered` / `lost`) is the output
+port's `rx` or `drop` at the addressee, which reaches another process as the `trace/<channel>` record of
+that event (`Outcomes`, keyed by the `seq` that status events carry), with the propagation time over its
+distance (`prop_time`, the tx channel's law from `info`).
 
 Callbacks run on Zenoh's threads: emulators only hand them to their own loop.
 """
@@ -22,17 +24,17 @@ import random
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from typing import Any
 
 import zenoh
-from uwsimnet_gli import wire
+from uwsimnet_gli import Frame, Modem, Status, World, wire
 from uwsimnet_gli.wire import Keys
 
-from ..bus.clock import WorldClock
 from ..errors import UwsimnetError
 from ..kernel.frame import BROADCAST
 from ..phy.framing import builder
-from .backend import BackendFrame, BackendStatus, DeliveryTracker, FrameCallback, Message, StatusCallback
+from .backend import BackendFrame, BackendStatus, FrameCallback, Message, StatusCallback
 
 log = logging.getLogger("uwsimnet.drivers.zenoh")
 
@@ -85,6 +87,38 @@ def prop_law(info: dict[str, Any], key: str = "prop") -> tuple[float, float, boo
     return 0.0, 1.0 / FALLBACK_SOUND_SPEED, False
 
 
+class Outcomes:
+    """The addressee's outcome of unicast frames, from the trace records of the output port's events
+    (docs/trace-format.md): `watch(src, seq, sender_dev, fn)`, then every record to `on_trace`; `fn(event,
+    reason, t, dist)` is called once, `delivered` for the first `rx` of the frame at another device (kind
+    data, not implicit), `lost` for a `drop` there.  Drops at the sender are its own statuses.  At most
+    `limit` frames are watched (the oldest forgotten)."""
+
+    def __init__(self, limit: int = 10000) -> None:
+        self.limit = limit
+        self._watch: OrderedDict[tuple[int, int], tuple[str, Callable[..., None]]] = OrderedDict()
+
+    def watch(self, src: int, seq: int, sender_dev: str, fn: Callable[[str, str | None, float, float | None],
+                                                                      None]) -> None:
+        self._watch[(src, seq)] = (sender_dev, fn)
+        while len(self._watch) > self.limit:
+            self._watch.popitem(last=False)
+
+    def forget(self, src: int, seq: int) -> None:
+        self._watch.pop((src, seq), None)
+
+    def on_trace(self, rec: dict[str, Any]) -> None:
+        ev = rec.get("ev")
+        if ev not in ("rx", "drop") or rec.get("kind", "data") != "data" or rec.get("implicit"):
+            return
+        key = (rec.get("src"), rec.get("seq"))
+        hit = self._watch.get(key)  # type: ignore[arg-type]
+        if hit is None or rec.get("dev") == hit[0]:
+            return
+        del self._watch[key]  # type: ignore[arg-type]
+        hit[1]("delivered" if ev == "rx" else "lost", rec.get("reason"), float(rec.get("t", 0.0)), rec.get("dist"))
+
+
 class ZenohBackend:
     def __init__(self, session: zenoh.Session, world: str, dev: str, *, timeout: float = 5.0,
                  track_delivery: bool = True) -> None:
@@ -109,24 +143,22 @@ class ZenohBackend:
         self.on_frame: list[FrameCallback] = []
         self.on_status: list[StatusCallback] = []
         self.counters = {"sent": 0, "received": 0, "statuses": 0}
-        self.tracker = DeliveryTracker()
+        self.tracker = Outcomes()
         self._lock = threading.Lock()
         self._tags: OrderedDict[int, tuple[Any, int]] = OrderedDict()     # our tag -> (caller's tag, dst)
         self._next = itertools.count(random.getrandbits(40) + 1)     # apart from other writers' tags
-        self.clock = WorldClock(session, self.keys)
-        k = self.keys
-        self._pub = session.declare_publisher(k.tx(dev), express=True,
-                                              congestion_control=zenoh.CongestionControl.BLOCK)
-        self._subs = [
-            session.declare_subscriber(k.rx(dev), self._on_rx),
-            session.declare_subscriber(k.status(dev), self._on_status),
-        ]
+        self.world = World(world, session=session)
+        self.world.clock(timeout=0)                 # its clock samples from now on (`now`)
+        self.modem = Modem(self.world, dev, buffer=0, on_receive=self._on_rx, on_status=self._on_status,
+                           watch_kind=False)        # (wire.USES["backend"]: it needs no kind, may not watch)
+        self._subs: list[Any] = []
         if track_delivery:
-            self._subs.append(session.declare_subscriber(k.trace(info.get("tx_channel", 0)), self._on_trace))
+            self._subs.append(session.declare_subscriber(self.keys.trace(info.get("tx_channel", 0)),
+                                                         self._on_trace))
 
     # -- ModemBackend -----------------------------------------------------------------------------
     def now(self) -> float:
-        t = self.clock.now()
+        t = self.world.sim_time(timeout=0)
         return float(self._info.get("t", 0.0)) if t is None else t
 
     def send(self, dst: int, data: bytes, tag: Any = None, msg: Message | None = None) -> None:
@@ -136,14 +168,14 @@ class ZenohBackend:
             while len(self._tags) > 10000:
                 self._tags.popitem(last=False)
         self.counters["sent"] += 1
-        self._pub.put(wire.encode_tx(int(dst), bytes(data), ours, msg=None if msg is None else msg.to_wire()))
+        self.modem.send(int(dst), bytes(data), tag=ours, msg=None if msg is None else msg.to_wire())
 
     def info(self) -> dict[str, Any]:
         return dict(self._info, counters=dict(self.counters))
 
     def close(self) -> None:
-        self.clock.close()
-        for e in (self._pub, *self._subs):
+        self.world.close()                          # its modem and clock subscriber (the session stays open)
+        for e in self._subs:
             with contextlib.suppress(Exception):
                 e.undeclare()
         self._subs = []
@@ -165,28 +197,20 @@ class ZenohBackend:
             if isinstance(rec, dict):
                 self.tracker.on_trace(rec)
 
-    def _on_rx(self, sample: zenoh.Sample) -> None:
-        try:
-            f = wire.decode_rx(sample.payload.to_bytes())
-        except wire.CodecError:
-            return
+    def _on_rx(self, f: Frame) -> None:
         self.counters["received"] += 1
         size = self._framed(len(f.data)) + int(self._info.get("header_bytes") or 0)
         # the broker's distance (older brokers: none, and link_metrics falls back to t_rx - t_tx)
         bf = BackendFrame(f.src, f.dst, f.data, f.seq, f.t_tx, f.t_rx, size, self.bitrate,
                           f.dist, None if f.dist is None else self.prop_time(f.dist, rx=True),
-                          msg=Message.from_wire(f.msg))
+                          msg=Message.from_wire(f.msg), aseq=(f.msg or {}).get("aseq"))
         for cb in list(self.on_frame):
             try:
                 cb(bf)
             except Exception:  # noqa: BLE001 - a listener must not break the others
                 log.exception("%s: frame listener raised", self.id)
 
-    def _on_status(self, sample: zenoh.Sample) -> None:
-        try:
-            st = wire.decode_status(sample.payload.to_bytes())
-        except wire.CodecError:
-            return
+    def _on_status(self, st: Status) -> None:
         if st.tag is None:
             return
         with self._lock:

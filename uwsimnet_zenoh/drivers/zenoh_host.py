@@ -144,12 +144,14 @@ class DriverHost:
 
 
 def _rx_msg(meta: dict[str, Any] | None) -> dict[str, Any] | None:
-    """The kind of message a real modem said it received (driver meta: kind, flag, pid) as the wire's rx
-    fields; None if it did not say.  Burst data passed through in data mode counts as burst."""
+    """The kind of message a real modem said it received (driver meta: kind, flag, pid) and the sending
+    application's seq when the frame carries one (meta aseq: a SimplePacket's) as the wire's rx fields; None
+    if it said nothing.  Burst data passed through in data mode counts as burst."""
     if not meta:
         return None
     kind = "burst" if meta.get("kind") == "data" else meta.get("kind")
-    m = {"kind": kind, "flag": meta.get("flag") if kind == "im" else None, "pid": meta.get("pid")}
+    m = {"kind": kind, "flag": meta.get("flag") if kind == "im" else None, "pid": meta.get("pid"),
+         "aseq": meta.get("aseq")}
     try:
         return wire.check_msg(m)
     except ValueError:

@@ -32,6 +32,7 @@ from ..scene.model import (
     Simulation,
     Vehicle,
 )
+from ..trace.tracer import Callback
 from . import aloha
 
 SPACING_M = 200.0
@@ -98,10 +99,11 @@ def run(n: int, load: float, duration: float, rule: str, seed: int = 1) -> dict:
     net = Network(scene(n, load, duration, rule, seed))
     got = [0] * (n + 2)
 
-    def count(_m, frame, _t, _d) -> None:
-        got[frame.src] += 1
+    def count(_t, ev, _ch, dev, frame, *_rest) -> None:
+        if ev == "rx" and dev == "sink" and frame.kind == "data":
+            got[frame.src] += 1
 
-    net.modems["sink"].on_receive.append(count)
+    net.tracer.listen(Callback(count))
     net.run()
     sensors = [net.modems[f"s{i}"] for i in range(n)]
     return {"n": n, "load": load, "rule": rule, "duration": duration, "seed": seed,

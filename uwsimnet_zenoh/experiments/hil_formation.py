@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from ..kernel.frame import BROADCAST
-from ..trace.events import finite
+from ..trace.events import Callback, finite
 from .hil_spec import (
     DEFAULT_TRAFFIC,
     DEPTH,
@@ -190,11 +190,12 @@ def simulate(mac: str, *, duration: float = DURATION, seed: int = 1, traffic: st
                 modem.send(s.dst, PAYLOAD, data=s.data)
             sched.after(app.period, timer)
 
-        def on_rx(_modem: Any, frame: Any, _t: float, _dist: float) -> None:
-            for g in app.on_frame(frame.src, frame.data or b""):
-                kin[name].go([g.waypoint])
+        def on_rx(_t: float, ev: str, _ch: int, dev: str, frame: Any, *_rest: Any, me: str = modem.id) -> None:
+            if ev == "rx" and dev == me and frame.kind == "data":
+                for g in app.on_frame(frame.src, frame.data or b""):
+                    kin[name].go([g.waypoint])
 
-        modem.on_receive.append(on_rx)
+        net.tracer.listen(Callback(on_rx))
         sched.at(first_due(app, 0.0), timer)
 
     def tick() -> None:

@@ -1,6 +1,8 @@
-"""The contract between a modem and its MAC, below both (phy and mac never import each other; ns-3's
-UanPhyListener and UanMac play these parts): `MacHooks`, what a modem tells its MAC (mac.Mac is one), and
-`MacContext`, what a modem offers its MAC (phy.Modem is one; mac.testing.FakeContext too).
+"""The contracts of a modem, below it: with its MAC (phy and mac never import each other; ns-3's
+UanPhyListener and UanMac play these parts), `MacHooks`, what a modem tells its MAC (mac.Mac is one), and
+`MacContext`, what a modem offers its MAC (phy.Modem is one; mac.testing.FakeContext too); with its
+channels, `Medium`, what a modem asks the channels it sends and listens on (phy.Channel is one: the channel
+calls the modem and imports it, the modem knows the channel only as this).
 
 They are classes, not Protocols, for speed: compiled with the engine (uwsimnet_zenoh/_native.py), a call
 between a modem and a compiled MAC is then a native call through the class's method table, where a call
@@ -47,6 +49,41 @@ class MacHooks:
 
     def close(self) -> None:
         """The modem leaves the simulation: give back what you hold (drop with a reason)."""
+
+
+class Medium:
+    """What a modem asks the channels it sends and listens on (phy.channel.Channel implements it).  A class
+    for the reason above: compiled, the modem's calls into its channel stay native calls (through a Protocol
+    they cost ~5 % of a compiled run, measured)."""
+
+    id: int                                      # the channel id every event of the modem carries
+    min_prop_s: float                            # delay = min_prop_s + prop_s_per_m * distance
+    prop_s_per_m: float
+
+    def attach(self, modem: Any) -> int:
+        """Listen with `modem` (a phy.Modem) from now on: its slot."""
+        raise NotImplementedError
+
+    def detach(self, modem: Any) -> None:
+        raise NotImplementedError
+
+    def has_address(self, address: int) -> bool:
+        """Does a modem listening here have `address`?"""
+        raise NotImplementedError
+
+    def max_prop_delay(self, max_distance: float) -> float:
+        raise NotImplementedError
+
+    def transmit(self, sender: Any, frame: Frame, dur: float) -> None:
+        """`frame` from `sender` (a phy.Modem), its first bit on air now, `dur` s long."""
+        raise NotImplementedError
+
+    def busy(self, slot: int) -> bool:
+        """Energy heard at listener `slot` now."""
+        raise NotImplementedError
+
+    def busy_until(self, slot: int) -> float:
+        raise NotImplementedError
 
 
 @mypyc_attr(allow_interpreted_subclasses=True)

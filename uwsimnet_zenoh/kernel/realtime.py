@@ -1,21 +1,51 @@
-"""The realtime clock: drives a `Scheduler` against the wall clock, on its own thread.
+"""The realtime clock: drives a `Scheduler` against the wall clock, on its own thread.  Its turn is the one
+place where the rules of a realtime run are written; the bus (bus/broker.py, bus/outbox.py) and the run
+(app/realtime.py) only plug into it.
 
-Simulation time is wall time since `start()` (times an optional speed factor), frozen while paused.
-One thread at a time touches the simulation, the one that holds the engine's lock: the engine thread,
-except while it waits.  Everything from outside (a frame an application sent, a pose sample, a control
-command) comes in through `call_soon(fn, *args)`, a thread-safe inbox that never blocks the caller beyond
-a lock, or `run_here(fn, *args)`, which runs the item on the caller's thread when the engine waits (one
-thread wake-up less) and queues it otherwise.  Each item is stamped with the simulation time at which it
-was handed over and runs at that time (never before an event that is already due, never in the past of
-the scheduler).
-
-Waiting for the next event is `Condition.wait` until shortly before its time, then a short busy spin:
-the OS wakes a thread late by 50-100 us, a spin does not (measured in docs/benchmarks.md).  An event
-runs with `sched.now` equal to its *modelled* time, so the trace and the frames carry modelled times;
+Simulation time is wall time since `start()` (times an optional speed factor), frozen while paused.  An
+event runs with `sched.now` equal to its *modelled* time, so the trace and the frames carry modelled times;
 how late the wall clock is when it runs is recorded in `stats()`.
 
-No I/O, no Zenoh: the bus layer (uwsimnet_zenoh.bus) feeds the inbox and publishes from callbacks that
-run here.
+**Where the simulation may run.**  One thread at a time, the one that holds the engine's lock (`_busy`):
+the engine thread, except while it waits; then a thread that hands in an item through `run_here` (a
+Zenoh callback: one thread wake-up less, 110-150 us of a broker round trip on the 2-core VM) runs it
+itself under the lock.  Nothing else touches the network, the MACs or the port's listeners: the
+simulation is single-threaded state with no locks of its own, and what leaves it is handed to outboxes
+(bus/outbox.py) whose threads make the puts, so the simulation never waits on the network and a
+consumer that does not read costs only its own outbox.
+
+**The turn** (`_loop`; `run_here` does steps 1-4 for its one item and leaves 5-6 to the engine thread):
+
+  1. inbox          every item of `call_soon` / `run_here`, each at its stamp (the simulation time it was
+                     handed in), after every event due by then.  Why: input never runs before an event
+                     already due, nor in the scheduler's past.
+  2. due events     every event due by now (`_run_until`).  The model's own work, at its modelled times.
+  3. rx hand-off    if an event woke an outbox for a received frame (`yield_to_output`), wait HANDOFF_S with
+                     the interpreter free.  Why: the rx put goes out before the hooks below; it is the
+                     modelled output, its wall time the delivery error.
+  4. done hooks     `done_hooks`, after every pass (the broker wakes the outboxes holding statuses).  Why:
+                     statuses go out next, one wake-up per outbox, not one per status.
+  5. idle hooks     `idle_hooks`, only with the inbox empty and the next event at least IDLE_SLACK away (the
+                     trace batch, periodic poses and clock, pose samples, the trace file).  Why: work
+                     without a modelled time never makes an event late.
+  6. wait           `Condition.wait` until SPIN before the next event (or `poll`, or input), then a busy
+                     spin.  Why: the OS wakes a thread 50-100 us late, a spin does not (docs/benchmarks.md).
+
+**The output port's dispatch policy** (trace/tracer.py) follows from it: the port calls its listeners at
+once, in the event; the broker's endpoint puts a received frame on its modem's outbox and wakes it at once
+(rx first, step 3), appends statuses and lets the done hook wake their outboxes (statuses next, step 4),
+and the trace writers and the trace publisher take the port's batches at idle (trace at idle, step 5).
+
+**Zenoh's network thread** (`_direct` in bus/broker.py): the broker's tx subscriber and queryables are
+`handlers.Callback(fn, indirect=False)`, which zenoh-python marks unstable: the callback runs on Zenoh's
+own network thread instead of a Python thread of its own, so with `run_here` a tx message is simulated on
+that thread.  It buys one thread hop per message (~0.1 ms on a VM).  It costs: while the simulation runs
+there, that network thread reads nothing else (the session's other messages wait behind the turn, at most
+one item's events); a put made on the same session to a key such a callback serves runs the callback, and
+so the simulation, inside that put; the callback must never block (it does not: it offers to a bounded lane
+and returns, or runs one item); and an unstable API may change within zenoh-python 1.x (pyproject allows >=1.10,<2).
+
+No I/O, no Zenoh here: the bus layer feeds the inbox and publishes from hooks that run here.
 """
 
 from __future__ import annotations

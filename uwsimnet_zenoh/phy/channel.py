@@ -21,6 +21,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Final, cast
 
 from ..kernel.frame import BROADCAST, Frame
+from ..kernel.link import Medium
 from .interference import classify, min_sinr_db
 
 if TYPE_CHECKING:
@@ -109,7 +110,7 @@ class Transmission:
         return self._end
 
 
-class Channel:
+class Channel(Medium):
     """A `CustomCommsChannel`: delay = min_prop_s + prop_s_per_m * distance at transmission start."""
 
     def __init__(self, cid: int, prop_s_per_m: float, min_prop_s: float, sched: Scheduler,

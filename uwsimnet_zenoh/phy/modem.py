@@ -16,17 +16,11 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 from ..kernel.frame import BROADCAST, Frame
-from ..kernel.link import MacContext, MacHooks
+from ..kernel.link import MacContext, MacHooks, Medium
 
 if TYPE_CHECKING:
     from ..kernel.scheduler import Scheduler
     from ..trace.tracer import Tracer
-    from .channel import Channel
-
-RxCallback = Callable[["Modem", Frame, float, float], None]
-"""(modem, frame, t, dist): a frame delivered at `t`, `dist` m from its transmitter at transmission start."""
-StatusCallback = Callable[["Modem", Frame, str, "str | None", float], None]
-
 
 class DeviceParams(Protocol):
     """The device parameters a modem reads (`scene.model.Device` has them; phy never imports the scene)."""
@@ -68,7 +62,7 @@ class Modem(MacContext):
     it through `MacHooks` (mac.Mac is one): phy never imports mac."""
 
     def __init__(self, cfg: DeviceParams, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
-                 tx_channel: Channel, rx_channel: Channel, seeds: Callable[[str, str], int],
+                 tx_channel: Medium, rx_channel: Medium, seeds: Callable[[str, str], int],
                  error: LossModel) -> None:
         self.cfg = cfg
         self.id = cfg.dccomms_id
@@ -79,6 +73,8 @@ class Modem(MacContext):
         self.tracer = tracer
         self.tx_channel = tx_channel
         self.rx_channel = rx_channel
+        self._tx_ch = tx_channel.id                   # the channel ids its events carry (read once)
+        self._rx_ch = rx_channel.id
         self.bitrate = cfg.bitrate
         self.header_bytes = cfg.header_bytes
         name = getattr(cfg, "tx_framing", None)
@@ -108,8 +104,6 @@ class Modem(MacContext):
         self.loss_random = random.Random(seeds("loss", self.id)).random
         self._jitter = random.Random(seeds("jitter", self.id))
         self.random = random.Random(seeds("mac", self.id)).random
-        self.on_receive: list[RxCallback] = []
-        self.on_status: list[StatusCallback] = []
         self.enqueued = 0               # frames offered, transmissions, deliveries, drops (`counters`)
         self.transmitted = 0
         self.delivered = 0
@@ -168,17 +162,17 @@ class Modem(MacContext):
                     and not self.tx_channel.has_address(dst):
                 refuse = "noaddr"           # nobody on the channel has that address: say so now
         if refuse is not None:
-            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
+            self.tracer.emit(now, "enq", self._tx_ch, self.id, frame, fifo=self.fifo_bytes)
             self.drop(frame, refuse)
         elif not direct and self.fifo_bytes + size > self.fifo_cap:
-            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, fifo=self.fifo_bytes)
+            self.tracer.emit(now, "enq", self._tx_ch, self.id, frame, fifo=self.fifo_bytes)
             self.drop(frame, "fifo")
         else:
-            self.tracer.emit(now, "enq", self.tx_channel.id, self.id, frame, None,
+            self.tracer.emit(now, "enq", self._tx_ch, self.id, frame, None,
                              self.fifo_bytes + (0 if direct else size))
             self.fifo.append(frame)
             self.fifo_bytes += size
-            if self.on_status:
+            if self.tracer.watchers:
                 self.status(frame, "queued")
             mac.on_queue()
         return frame
@@ -216,7 +210,7 @@ class Modem(MacContext):
         now = self.sched.now
         frame.t_tx = now
         self.transmitted += 1
-        self.tracer.emit(now, "tx", self.tx_channel.id, self.id, frame, None, self.fifo_bytes)
+        self.tracer.emit(now, "tx", self._tx_ch, self.id, frame, None, self.fifo_bytes)
         dur = frame.size * 8.0 / self.bitrate
         self.tx_channel.transmit(self, frame, dur)
         self.sched.at(now + dur, self._tx_end_at, frame)       # = after(dur): the same double
@@ -247,29 +241,27 @@ class Modem(MacContext):
         self.delivered += 1
         # a frame for another address handed up anyway (no MAC: the original's implicit broadcast)
         implicit = frame.dst != BROADCAST and frame.dst != self.address
-        self.tracer.emit(now, "rx", self.rx_channel.id, self.id, frame, dist=dist, implicit=implicit)
-        for cb in self.on_receive:
-            cb(self, frame, now, dist)
+        self.tracer.emit(now, "rx", self._rx_ch, self.id, frame, dist=dist, implicit=implicit)
 
     def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
         """Give `frame` up: traced `drop` with `reason`, and its final status `event` (`dropped`; a MAC
         that gave up after its retries says `failed`)."""
         frame.final = reason
         self.dropped += 1
-        self.tracer.emit(self.sched.now, "drop", self.tx_channel.id, self.id, frame, reason, self.fifo_bytes)
-        if self.on_status:
+        self.tracer.emit(self.sched.now, "drop", self._tx_ch, self.id, frame, reason, self.fifo_bytes)
+        if self.tracer.watchers:
             self.status(frame, event, reason)
 
     def status(self, frame: Frame, event: str, reason: str | None = None) -> None:
-        for cb in self.on_status:
-            cb(self, frame, event, reason, self.sched.now)
+        """A status of `frame` for its sender (the output port's `status`)."""
+        self.tracer.status(self.sched.now, event, self._tx_ch, self.id, frame, reason)
 
     def tx_time(self, size: int) -> float:
         return size * 8.0 / self.bitrate
 
     def trace_rx(self, frame: Frame) -> None:
         """A MAC control frame reached its MAC intact: traced as `rx`, not handed to the application."""
-        self.tracer.emit(self.sched.now, "rx", self.rx_channel.id, self.id, frame, dist=self._rx_dist)
+        self.tracer.emit(self.sched.now, "rx", self._rx_ch, self.id, frame, dist=self._rx_dist)
 
     def max_prop_delay(self, distance: float | None = None) -> float:
         return self.tx_channel.max_prop_delay(self.max_distance if distance is None else distance)

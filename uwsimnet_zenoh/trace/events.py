@@ -1,7 +1,7 @@
-"""The trace's sinks: the JSONL writer, the columnar writer and the user's tracing class, fed by the tracer
-(trace/tracer.py: `Tracer`, `Batch`, `record`, re-exported here).  Every frame's life is told as `enq`,
-`tx`, `rx` and `drop` records (docs/trace-format.md).  Sinks are handed open files or callables: the core
-never opens anything itself (ArrowSink opens the path it is given).
+"""The trace's sinks: the JSONL writer, the columnar writer and the user's tracing class, listeners of the
+output port (trace/tracer.py: `Tracer`, `Listener`, `Batch`, `record`, re-exported here).  Every frame's life
+is told as `enq`, `tx`, `rx` and `drop` records (docs/trace-format.md).  Sinks are handed open files or
+callables: the core never opens anything itself (ArrowSink opens the path it is given).
 """
 
 from __future__ import annotations
@@ -15,11 +15,25 @@ from typing import IO, Any
 import msgspec
 
 from ..kernel.frame import Frame
-from .tracer import ROW_FIELDS, Batch, BatchConsumer, EventListener, Record, Row, Tracer, record, rounded
+from .tracer import (
+    ROW_FIELDS,
+    Batch,
+    BatchConsumer,
+    Batcher,
+    Callback,
+    Listener,
+    Record,
+    Records,
+    Row,
+    Tracer,
+    record,
+    rounded,
+)
 from .tracer import lines as make_lines
 
-__all__ = ["ROW_FIELDS", "ArrowSink", "Batch", "BatchConsumer", "CallbackSink", "EventListener", "JsonlSink",
-           "Record", "Row", "Tracer", "finite", "load_tracing_class", "record", "rounded", "row_record"]
+__all__ = ["ROW_FIELDS", "ArrowSink", "Batch", "BatchConsumer", "Batcher", "Callback", "CallbackSink", "JsonlSink",
+           "Listener", "Record", "Records", "Row", "Tracer", "finite", "load_tracing_class", "record", "rounded",
+           "row_record"]
 
 _EVENTS = ("enq", "tx", "rx", "drop")
 
@@ -92,11 +106,11 @@ def _plain(x: float) -> bool:
     return 1e-4 <= x < 1e15 or x == 0.0
 
 
-class JsonlSink:
+class JsonlSink(Listener):
     """Writes one compact JSON object per line to an open file, text or binary (deterministic key order).
 
-    As a record sink (`tracer.add(sink)`) it writes each record at once with Python's json.  As an event
-    listener (`tracer.listen(sink.event)`) it encodes events with msgspec in batches of `batch` lines
+    As a record sink (`tracer.add(sink)`) it writes each record at once with Python's json.  As a
+    listener (`tracer.listen(sink)`) it encodes events with msgspec in batches of `batch` lines
     and writes them together: byte for byte the same file, several times faster.  Call `flush()` (or
     `close()`) before the file is closed."""
 
@@ -173,7 +187,7 @@ class JsonlSink:
             write(data if binary else data.decode("utf-8"))  # type: ignore[arg-type]
 
 
-class ArrowSink:
+class ArrowSink(Listener):
     """The columnar trace (optional, `pip install uwsimnet-zenoh[columnar]`): the same events as the JSONL
     trace, one column per field, written to an Arrow IPC file in record batches of `batch` rows.  The meta
     record is the schema's metadata (key `uwsimnet.meta`, its JSON).  Read back by `analysis.read_trace`

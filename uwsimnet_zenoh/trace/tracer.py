@@ -1,25 +1,28 @@
-"""The tracer: where the core tells every frame's life (`enq`, `tx`, `rx`, `drop`; docs/trace-format.md),
-and the batches its consumers take.  A module of its own, compiled with the engine when `make` can
-(uwsimnet_zenoh/_native.py): the engine calls `emit` several times a frame.  The sinks that write traces
-are in trace/events.py.
+"""The output port: every fact about a frame, told once, to every listener in one shape.
 
-The tracer has four kinds of listeners:
+A run's modems and channels tell the port (`Tracer`, `net.tracer`) each fact as it happens:
 
-- *event folds* (`Tracer.fold`, an `EventFold`) are called at once with each event's record fields, natively
-  when both are compiled: the online metrics' fold (analysis.fold.Fold, through `Accumulator.follow`);
-- *batch consumers* (`Tracer.consume`) get the events in batches (`Batch`: one row tuple per event, its
-  time rounded once for all of them), in order, at most `Tracer.batch` events late: the JSONL writer
-  (`JsonlSink.write_batch`) and the columnar writer (`ArrowSink.write_batch`).  The tracer appends each
-  event once to the shared batch, a consumer does its work per batch (vectorised where it can), so a run
-  pays one append per event for all of them.  Whoever
-  runs the network calls `Tracer.flush()` when the run ends (app/virtual.py does, on an interrupt and an
-  error too);
-- *event listeners* (`Tracer.listen`) are called at once with the event's fields, `fn(t, ev, ch, dev,
-  frame, reason, fifo, dist, implicit)`, and build nothing;
-- *record sinks* (`Tracer.add`) get the event at once as a dict (the documented record); the dict is
-  built only when at least one record sink listens (the realtime trace, `netTracingScript` classes).
+- the frame events of the trace (docs/trace-format.md): `enq`, `tx`, `rx` (with its distance: the
+  receiver's outcome for the sender, as is a receiver's `drop`), `drop` (`Tracer.emit`);
+- the sender's statuses, `queued`, `sent`, `transmitted`, `acked`, `failed`, `dropped` (`Tracer.status`):
+  what docs/gli-protocol.md's `status` messages say.
 
-With none, an untraced run pays for a counter increment and nothing else.
+Whatever watches the engine is a `Listener`: its `event(t, ev, ch, dev, frame, reason, fifo, dist, implicit)`
+is called once per fact, at once, with the fields as the engine has them and nothing built for it (`ev` the
+event or the status; a status has no fifo nor distance).  `listen(l)` takes the frame events,
+`listen(l, statuses=True)` the statuses too.  The listeners of a run:
+
+- the online metrics' fold (analysis.fold.Fold; through `Accumulator.follow`);
+- the trace writers, renderings of the one record: `Batcher` (below) gathers events into `Batch`es for the
+  JSONL writer and the columnar one (`consume`), which write them at `flush()` or every `batch` events;
+  `Records` makes the documented dict of each event for a callable (`add`: the user's tracing class, the
+  records kept in memory);
+- the broker's endpoints and the simulator backend (drivers/sim_backend.py): the rx and status events of
+  the modems they serve, and the receivers' outcomes of the frames their apps sent.
+
+With no listener a run pays for a counter increment per event and nothing else.  The port's listeners are
+called in the order they were added; a realtime run orders its *outputs* (rx first, statuses next, the
+trace at idle: kernel/realtime.py) by where each listener puts its work, not by the port.
 """
 
 from __future__ import annotations
@@ -34,7 +37,23 @@ from mypy_extensions import mypyc_attr
 from ..kernel.frame import Frame
 
 Record = dict[str, Any]
-EventListener = Callable[[float, str, int, str, Frame, "str | None", "int | None", "float | None", bool], None]
+
+FRAME_EVENTS: Final = ("enq", "tx", "rx", "drop")
+STATUSES: Final = ("queued", "sent", "transmitted", "acked", "failed", "dropped")
+"""The sender's statuses (docs/gli-protocol.md#status-modem--app): `Tracer.status`."""
+
+
+@mypyc_attr(allow_interpreted_subclasses=True)
+class Listener:
+    """What watches the engine: `event` is called once per fact (see the module's docstring).  A class
+    rather than a callback so that the compiled port calls a compiled listener (the metrics' fold, the
+    batcher) natively; interpreted subclasses override `event` as they like."""
+
+    def event(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None, fifo: int | None,
+              dist: Any, implicit: Any) -> None:
+        """`t` the time (a number; an int stays one), `dev` the modem where it happened, `dist` the distance
+        of a reception or a receiver's drop (m, else None), `implicit` true for a frame handed up at a modem
+        that is not its addressee (no MAC: the original's implicit broadcast)."""
 
 
 Row = tuple[Any, ...]
@@ -60,12 +79,22 @@ def rounded(xs: Sequence[Any], ndigits: int) -> list[Any]:
     others (zero, negative, too large, not finite) and ints (round(3, 9) is 3) go to `round` itself."""
     scale = 10.0 ** ndigits
     out: list[Any] = []
+    prev = math.nan                     # events come in runs at one time (enq then tx, a frame's receptions):
+    r: Any = None                       # a time equal to the previous one has its rounding
     for x in xs:
-        out.append(_round(x, scale, ndigits) if type(x) is float else round(x, ndigits))
+        if type(x) is float:
+            xf: float = x
+            if xf != prev or xf <= 0.0:     # (-0.0 equals 0.0 but is another record)
+                r = round_fast(xf, scale, ndigits)
+                prev = xf
+            out.append(r)
+        else:
+            out.append(round(x, ndigits))
+            prev = math.nan
     return out
 
 
-def _round(x: float, scale: float, ndigits: int) -> float:
+def round_fast(x: float, scale: float, ndigits: int) -> float:
     """round(x, ndigits) of one float (`rounded`), scale = 10.0 ** ndigits."""
     p = x * scale
     if 0.0 < p < _EXACT:
@@ -105,7 +134,7 @@ def lines(rows: list[Row], t9: list[Any], make: Any) -> tuple[list[Any], list[in
             plain = _plain(t)
         dist: Any = r[12]
         if dist is not None:
-            d = _round(float(dist), 1000.0, 3)
+            d = round_fast(float(dist), 1000.0, 3)
             dist = d
             if plain:
                 plain = 1e-4 <= d < 1e15 or d == 0.0
@@ -147,128 +176,144 @@ class Batch:
 BatchConsumer = Callable[[Batch], None]
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)
-class EventFold:
-    """What takes every event at once, natively (`Tracer.fold`): the online metrics' fold
-    (analysis.fold.Fold) is one.  A class rather than a callback so that the compiled tracer calls the
-    compiled fold directly, with the event's fields and no row built for it; the arguments are the
-    record's fields (`t` rounded as the record says it, `has_dist` whether the record has a distance)."""
-
-    def event(self, t: object, ev: str, ch: object, dev: str, src: int, dst: object, seq: int, size: int,
-              flow: str | None, kind: str, reason: str | None, has_dist: bool, implicit: bool) -> None:
-        raise NotImplementedError
-
-
 BATCH: Final = 4096
 """Events per batch handed to the batch consumers."""
 
 
-class Tracer:
+class Batcher(Listener):
+    """The events in batches (`Batch`: one row tuple per event, its time rounded once for all of them), in
+    order, at most `batch` events late, for the trace writers (`JsonlSink.write_batch`,
+    `ArrowSink.write_batch`): one append per event for all of them, each writer's work per batch
+    (vectorised where it can).  Whoever runs the network calls `Tracer.flush()` when the run ends."""
+
     def __init__(self, batch: int = BATCH) -> None:
-        self.sinks: list[Callable[[Record], None]] = []
-        self.listeners: list[EventListener] = []
-        self.consumers: list[BatchConsumer] = []
-        self.folds: list[EventFold] = []
         self.batch = batch
-        self._rows: list[Row] | None = None     # None: no batch consumer, each event counted at once
-        self._t9: list[Any] = []                # the rows' record times, when the folds made them
-        self._rows_only = True                  # no event listener nor record sink
+        self.rows: list[Row] = []
+        self.consumers: list[BatchConsumer] = []
+        self.t9: list[Any] = []             # the rows' record times (Batch.t9), made as they come:
+        self._t_prev = math.nan             # events come in runs at one time (enq then tx, a frame's
+        self._t9_prev: Any = None           # receptions), so most take the previous one's rounding
+
+    def event(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None, fifo: int | None,
+              dist: Any, implicit: Any) -> None:
+        if type(t) is float:                # (analysis.fold.Fold.event rounds the same way, for itself)
+            tf: float = t
+            if tf == self._t_prev:
+                t9: Any = self._t9_prev
+            else:
+                t9 = round_fast(tf, 1e9, 9)
+                if tf > 0.0:                # (never -0.0, which equals 0.0 but is another record)
+                    self._t_prev = tf
+                    self._t9_prev = t9
+        else:
+            t9 = round(t, 9)
+        self.t9.append(t9)
+        rows = self.rows
+        rows.append((t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
+                     reason, fifo, dist, implicit))
+        if len(rows) >= self.batch:
+            self.flush()
+
+    def flush(self) -> None:
+        rows = self.rows
+        if not rows:
+            return
+        self.rows = []
+        t9 = self.t9
+        self.t9 = []
+        b = Batch(rows, t9)
+        for fn in self.consumers:
+            fn(b)
+
+
+class Records(Listener):
+    """`fn(record)` of every frame event, the documented dict (`record`): built per event, so for the
+    few who need a dict (the user's tracing class, records kept in memory, a small realtime trace)."""
+
+    def __init__(self, fn: Callable[[Record], None]) -> None:
+        self.fn = fn
+
+    def event(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None, fifo: int | None,
+              dist: Any, implicit: Any) -> None:
+        self.fn(record(t, ev, ch, dev, frame, reason, fifo, dist, implicit))
+
+
+class Callback(Listener):
+    """`fn(t, ev, ch, dev, frame, reason, fifo, dist, implicit)` of every event: a function as a listener."""
+
+    def __init__(self, fn: Callable[..., None]) -> None:
+        self.fn = fn
+
+    def event(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None, fifo: int | None,
+              dist: Any, implicit: Any) -> None:
+        self.fn(t, ev, ch, dev, frame, reason, fifo, dist, implicit)
+
+
+class Tracer:
+    """The output port (see the module's docstring); it also counts the frame events by (ev, reason)."""
+
+    def __init__(self, batch: int = BATCH) -> None:
+        self.listeners: list[Listener] = []
+        self.watchers: list[Listener] = []
+        """The listeners of the statuses too (`listen(l, statuses=True)`)."""
+        self.batch = batch
+        self._batcher: Batcher | None = None
         self._counts: dict[str, dict[str | None, int]] = {}     # ev -> reason -> events (but the three below)
         self._n_enq = 0                         # enq, tx and rx events without a reason (nearly all of them):
         self._n_tx = 0                          # native counters, where a dict costs two lookups an event
         self._n_rx = 0
-        self._t_prev = math.nan                 # the last float time the folds were given, and its t9:
-        self._t9_prev: object = None            # events come in runs at one time (enq, then tx or drop)
 
-    def add(self, sink: Callable[[Record], None]) -> None:
-        """A record sink: called with each event as a dict (docs/trace-format.md), at once."""
-        self.sinks.append(sink)
-        self._rows_only = False
+    def listen(self, listener: Listener, *, statuses: bool = False) -> None:
+        """`listener.event(...)` of every frame event from now on (and of every status, `statuses`)."""
+        self.listeners.append(listener)
+        if statuses:
+            self.watchers.append(listener)
 
-    def listen(self, fn: EventListener) -> None:
-        """An event listener: called at once with (t, ev, ch, dev, frame, reason, fifo, dist, implicit);
-        nothing is built."""
-        self.listeners.append(fn)
-        self._rows_only = False
+    def unlisten(self, listener: Listener) -> None:
+        """No more events for `listener` (a no-op if it had none)."""
+        for lst in (self.listeners, self.watchers):
+            if listener in lst:
+                lst.remove(listener)
 
-    def fold(self, f: EventFold) -> None:
-        """An event fold: `f.event(...)` called at once with each event's record fields."""
-        self.folds.append(f)
+    def add(self, fn: Callable[[Record], None]) -> None:
+        """`fn(record)` of every frame event (a `Records` listener)."""
+        self.listen(Records(fn))
 
     def consume(self, fn: BatchConsumer) -> None:
-        """A batch consumer: called with each `Batch` of events, in order, when `batch` events are
-        pending and at `flush()`."""
-        self.consumers.append(fn)
-        if self._rows is None:
-            self._rows = []
+        """`fn(batch)` of the frame events in `Batch`es (the port's one `Batcher`, added at the first)."""
+        if self._batcher is None:
+            self._batcher = Batcher(self.batch)
+            self.listen(self._batcher)
+        self._batcher.consumers.append(fn)
 
     def emit(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None = None,
              fifo: int | None = None, dist: Any = None, implicit: Any = False) -> None:
-        """One event at time `t` (a number: an int stays one in the record, as round() keeps it), `dist`
-        the distance of a reception (m, None for the transmitter's events), `implicit` true for a frame
-        handed to a modem that is not its addressee.  (`t`, `dist` and `implicit` are taken as given,
-        compiled or not.)"""
-        rows = self._rows
-        if self.folds:
-            if type(t) is float:
-                tf: float = t
-                if tf == self._t_prev:
-                    t9: Any = self._t9_prev
-                else:
-                    t9 = _round(tf, 1e9, 9)
-                    if tf > 0.0:        # (never -0.0, which equals 0.0 but is another record)
-                        self._t_prev = tf
-                        self._t9_prev = t9
-            else:
-                t9 = round(t, 9)
-            has_dist = dist is not None
-            for f in self.folds:
-                f.event(t9, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
-                        reason, has_dist, bool(implicit))
-            if rows is not None:
-                self._t9.append(t9)             # the batch's t9 made once (`flush`)
-        if rows is None:
-            self._count(ev, reason)
-        else:
-            rows.append((t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
-                         reason, fifo, dist, implicit))
-            if len(rows) >= self.batch:
-                self.flush()
-            if self._rows_only:
-                return
-        for fn in self.listeners:
-            fn(t, ev, ch, dev, frame, reason, fifo, dist, implicit)
-        if not self.sinks:
-            return
-        rec = record(t, ev, ch, dev, frame, reason, fifo, dist, implicit)
-        for sink in self.sinks:
-            sink(rec)
-
-    def flush(self) -> None:
-        """Hand the pending events to the batch consumers (at the end of a run; at any time)."""
-        rows = self._rows
-        if not rows:
-            return
-        self._rows = []
-        t9 = self._t9
-        self._t9 = []
-        for r in rows:
-            self._count(r[1], r[10])
-        b = Batch(rows, t9 if len(t9) == len(rows) else None)   # a fold added within the batch: computed
-        for fn in self.consumers:
-            fn(b)
-
-    def _count(self, ev: str, reason: str | None) -> None:
+        """A frame event at time `t` (see `Listener.event`)."""
         if reason is None:
             if ev == "tx":
                 self._n_tx += 1
-                return
-            if ev == "enq":
+            elif ev == "enq":
                 self._n_enq += 1
-                return
-            if ev == "rx":
+            elif ev == "rx":
                 self._n_rx += 1
-                return
+            else:
+                self._count(ev, reason)
+        else:
+            self._count(ev, reason)
+        for lst in self.listeners:
+            lst.event(t, ev, ch, dev, frame, reason, fifo, dist, implicit)
+
+    def status(self, t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None = None) -> None:
+        """A status `ev` (STATUSES) of `frame` for its sender `dev`, at time `t`."""
+        for lst in self.watchers:
+            lst.event(t, ev, ch, dev, frame, reason, None, None, False)
+
+    def flush(self) -> None:
+        """Hand the pending events to the batch consumers (at the end of a run; at any time)."""
+        if self._batcher is not None:
+            self._batcher.flush()
+
+    def _count(self, ev: str, reason: str | None) -> None:
         by = self._counts.get(ev)
         if by is None:
             by = self._counts[ev] = {}
@@ -276,7 +321,6 @@ class Tracer:
 
     def _by_reason(self) -> dict[str, dict[str | None, int]]:
         """Events so far, ev -> reason -> count (a copy)."""
-        self.flush()
         out = {ev: dict(by) for ev, by in self._counts.items()}
         for ev, n in (("enq", self._n_enq), ("tx", self._n_tx), ("rx", self._n_rx)):
             if n:

@@ -24,25 +24,32 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import AsyncIterator, Callable, Iterable, Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import zenoh
 
 from .records import Frame, Status, read_map, read_rx, read_status
-from .wire import FINAL_EVENTS, check_chunk, encode_tx
-
-if TYPE_CHECKING:
-    from uwsimnet_gli.world import World
+from .wire import FINAL_EVENTS, Keys, check_chunk, encode_tx
 
 __all__ = ["FINAL_EVENTS", "Modem"]
 _tags = itertools.count(random.SystemRandom().getrandbits(31) + 1)
 """Auto tags: per process, from a random start (two apps on one modem rarely share a tag)."""
 
 
+class WorldLike(Protocol):
+    """What a modem needs of its world (uwsimnet_gli.World is one; declared here so that only the world
+    imports the modem): its session, keys and name, and the list of its modems it closes with it."""
+
+    name: str
+    keys: Keys
+    session: zenoh.Session
+    _modems: list[Any]
+
+
 class Modem:
-    def __init__(self, world: World, dev: str, *, buffer: int = 4096,
+    def __init__(self, world: WorldLike, dev: str, *, buffer: int = 4096,
                  on_receive: Callable[[Frame], Any] | None = None,
-                 on_status: Callable[[Status], Any] | None = None) -> None:
+                 on_status: Callable[[Status], Any] | None = None, watch_kind: bool = True) -> None:
         self.world = world
         self.id = check_chunk(dev, "modem id")
         k = world.keys
@@ -63,8 +70,10 @@ class Modem:
         self._subs = [
             s.declare_subscriber(k.modem(self.id, "rx"), self._on_rx),
             s.declare_subscriber(k.modem(self.id, "status"), self._on_status),
-            s.liveliness().declare_subscriber(k.modem(self.id, "driver/*"), self._on_driver, history=True),
         ]
+        if watch_kind:          # who serves it (`kind`); False: a program whose role may not watch
+            self._subs.append(s.liveliness().declare_subscriber(k.modem(self.id, "driver/*"), self._on_driver,
+                                                                history=True))
         world._modems.append(self)
 
     def __repr__(self) -> str:

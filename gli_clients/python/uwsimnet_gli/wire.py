@@ -455,18 +455,25 @@ MSG_KINDS = ("burst", "im", "ims", "pbm")
 """`kind` of a message, as an acoustic modem with several services (EvoLogics S2C) tells them apart:
 burst data, instant message, synchronous instant message, piggy-back message."""
 IM_FLAGS = ("ack", "noack", "force")
-MSG_KEYS = ("kind", "flag", "ts", "pid")
+MSG_KEYS = ("kind", "flag", "ts", "pid", "aseq")
+"""`aseq`: the sending application's own sequence number (dccomms' SetVirtualSeq, 0..2^32-1), with or without
+a `kind`; receivers get it unchanged (the original simulator passed it through), beside the modem's `seq`."""
 
 
 def check_msg(msg: Any) -> dict[str, Any] | None:
-    """The message-kind fields of a tx/rx map (`kind`, `flag`, `ts`, `pid`), checked; None if `kind` is
-    absent.  ValueError says what is wrong: `flag` only with kind im, `ts` (µs, 0..2^32-1) only with ims,
-    `pid` 0..7."""
-    if msg is None or msg.get("kind") is None:
-        if msg and any(msg.get(k) is not None for k in MSG_KEYS):
-            raise ValueError("'flag', 'ts' and 'pid' need a 'kind'")
+    """The message fields of a tx/rx map (`kind`, `flag`, `ts`, `pid`, `aseq`), checked; None if none is
+    there.  ValueError says what is wrong: `flag` only with kind im, `ts` (µs, 0..2^32-1) only with ims,
+    `pid` 0..7, `aseq` 0..2^32-1; `flag`, `ts`, `pid` need a `kind`."""
+    if not msg:
         return None
-    kind, flag, ts, pid = (msg.get(k) for k in MSG_KEYS)
+    aseq = msg.get("aseq")
+    if aseq is not None and (not _is_int(aseq) or not 0 <= aseq < 1 << 32):
+        raise ValueError("'aseq' must be an integer 0..2^32-1")
+    if msg.get("kind") is None:
+        if any(msg.get(k) is not None for k in MSG_KEYS[1:4]):
+            raise ValueError("'flag', 'ts' and 'pid' need a 'kind'")
+        return None if aseq is None else {"aseq": aseq}
+    kind, flag, ts, pid = (msg.get(k) for k in MSG_KEYS[:4])
     if kind not in MSG_KINDS:
         raise ValueError(f"'kind' must be one of {MSG_KINDS}")
     if flag is not None and (kind != "im" or flag not in IM_FLAGS):
@@ -475,7 +482,7 @@ def check_msg(msg: Any) -> dict[str, Any] | None:
         raise ValueError("'ts' is for kind ims only, an integer 0..2^32-1 (µs)")
     if pid is not None and (not _is_int(pid) or not 0 <= pid <= 7):
         raise ValueError("'pid' must be an integer 0..7")
-    return {k: v for k, v in zip(MSG_KEYS, (kind, flag, ts, pid), strict=True) if v is not None}
+    return {k: v for k, v in zip(MSG_KEYS, (kind, flag, ts, pid, aseq), strict=True) if v is not None}
 
 
 def _msg_fields(m: dict, what: str, tag: int | None = None) -> dict[str, Any] | None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import threading
 import time
 from collections.abc import Sequence
@@ -80,6 +81,23 @@ def config_access(conf: zenoh.Config) -> dict[str, Any] | None:
         return None
     a = v.get(ACCESS_KEY) if isinstance(v, dict) else None
     return a if isinstance(a, dict) else None
+
+
+def is_clock(m: Any) -> bool:
+    """Is `m` a usable `clock` sample ({t, epoch, speed, paused}: a finite `t`, a positive `speed` if any)?"""
+    if not isinstance(m, dict):
+        return False
+    t, speed = m.get("t"), m.get("speed", 1.0)
+    return (isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t)
+            and isinstance(speed, int | float) and speed > 0)
+
+
+def sim_time(sample: dict[str, Any]) -> float:
+    """Simulation time now from a `clock` sample (`is_clock`): the one formula, the inverse of the broker's
+    `epoch` (kernel/realtime.py: wall time of simulation time 0 at the current speed); `t` while paused."""
+    if sample.get("paused") or not isinstance(sample.get("epoch"), int | float):
+        return float(sample["t"])
+    return (time.time() - float(sample["epoch"])) * float(sample.get("speed") or 1.0)
 
 
 def discover_worlds(session: zenoh.Session, timeout: float = 2.0) -> list[str]:
@@ -209,7 +227,7 @@ class World:
             m = read_map(sample.payload.to_bytes())
         except Exception:  # noqa: BLE001
             return
-        if isinstance(m, dict) and isinstance(m.get("t"), int | float):
+        if is_clock(m):
             with self._clock_cond:
                 self._clock = m
                 self._clock_cond.notify_all()
@@ -217,11 +235,7 @@ class World:
     def sim_time(self, timeout: float = 2.0) -> float | None:
         """Current simulation time estimated from the wall clock and the last clock sample."""
         c = self.clock(timeout)
-        if c is None:
-            return None
-        if c.get("paused") or not isinstance(c.get("epoch"), int | float):
-            return float(c["t"])
-        return (time.time() - float(c["epoch"])) * float(c.get("speed") or 1.0)
+        return None if c is None else sim_time(c)
 
     # -- control ---------------------------------------------------------------------------------
     def control(self, op: str, timeout: float = 2.0, **request: Any) -> dict[str, Any]:

@@ -1,34 +1,24 @@
-"""Emulators: a simulated modem that looks like the real device, so software written for the hardware
-runs against the simulator unchanged.
-
-* `EvoLogicsEmulator`: a TCP server speaking the S2C AT command set, command and data mode, like the
-  modem's port 9200.  Point evins, dmac, DESERT, DUNE (`interpreter="net"`) or your own code at
-  `127.0.0.1:<port>`.
-* `SerialRadioEmulator`: a pty that behaves like a transparent serial radio carrying dccomms
-  DataLinkFrames (Seatooth S100 style).  Open `emulator.path` as you would `/dev/ttyUSB0`.
-
-Both sit on a `ModemBackend` (drivers/backend.py): `SimBackend` for an in-process simulation, the
-Zenoh backend (part B) for a running broker.  docs/drivers.md lists what is reproduced and how.
+"""The EvoLogics S2C emulator: a simulated modem that looks like the real device, so software written for
+the hardware runs against the simulator unchanged.  `EvoLogicsEmulator` is a TCP server speaking the S2C
+AT command set (`formats.evologics_at`), command and data mode, like the modem's port 9200, or the `net`
+interpreter.  Point evins, dmac, DESERT, DUNE (`interpreter="net"`) or your own code at
+`127.0.0.1:<port>`.  It sits on a `ModemBackend` (drivers/backend.py): `SimBackend` for an in-process
+simulation, `ZenohBackend` for a running broker.  docs/drivers.md lists what is reproduced and how.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
 import logging
-import os
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..phy import framing as fr
-from . import dccomms_framing as dl
-from . import evologics_at as at
-from ._aio import FdStream, LoopThread, ServerClient, TcpServer
-from .backend import BackendFrame, BackendStatus, Message, ModemBackend, detach, link_metrics
-from .serial_radio import set_raw
+from ...formats import evologics_at as at
+from .._aio import LoopThread, ServerClient, TcpServer
+from ..backend import BackendFrame, BackendStatus, Message, ModemBackend, detach, link_metrics
 
 log = logging.getLogger("uwsimnet.drivers.emulators")
 
@@ -402,6 +392,13 @@ class EvoLogicsEmulator:
             return f"DELIVERING,{m.kind},{m.pid}"
         return self._di
 
+    def _link_status(self) -> str | list[str]:
+        """`AT?S`: one line from the `at` interpreter; a block ended by an empty line from `net`, which is
+        what evins waits for there (role_at.erl 3b5c6c0, from_term_helper: `{"?S", net} -> multiline`, a
+        multiline answer ends at "\\n\\r\\n")."""
+        text = f"INITIATION LISTEN {max(0, int(self.settings.get('ZL') or 16384) - self._pool)}"
+        return [text] if self.interpreter == "net" else text
+
     def _plain(self, c: _AtClient, ev: at.Command) -> str | list[str] | None:
         name, arg = ev.name, ev.arg.strip()
         s = self.settings
@@ -418,7 +415,7 @@ class EvoLogicsEmulator:
                        "MODE": lambda: self.interpreter.upper(), "CLOCK": lambda: str(self.clock_us()),
                        "UT": lambda: f"{self.backend.now():.3f}", "PHY": lambda: "ON",
                        "ZE": lambda: str(self._delivered_bytes), "ZD": lambda: "0", "ZO": lambda: "0",
-                       "S": lambda: f"INITIATION LISTEN {max(0, int(s.get('ZL') or 16384) - self._pool)}"}
+                       "S": self._link_status}
             answers["BR"] = answers["BL"]
             fn = answers.get(key)
             return fn() if fn is not None else ERR_FORMAT
@@ -672,128 +669,3 @@ class _AtClient(ServerClient):
         if self._data:
             data, self._data = bytes(self._data), bytearray()
             self.emu.data_mode_burst(self, data)
-
-
-def _frame_error(ev: dl.FrameEvent) -> str:
-    """One line about a bad frame (the event's repr would dump up to 2 KB of raw bytes)."""
-    if isinstance(ev, dl.BadCrc):
-        return f"bad CRC (frame {ev.src}->{ev.dst}, {ev.length} bytes payload)"
-    if isinstance(ev, dl.BadLength):
-        return f"bad length {ev.length}"
-    if isinstance(ev, dl.Truncated):
-        return f"truncated frame ({len(ev.raw)} of {ev.expected} bytes)"
-    return type(ev).__name__
-
-
-class SerialRadioEmulator:
-    """A pty that behaves like a transparent serial radio carrying dccomms DataLinkFrames.
-
-    Valid frames written to the pty go on air through the backend (to the frame's dst; the source
-    address is the simulated modem's); frames the modem receives come out of the pty as DataLinkFrames.
-    Garbage, bad CRCs and bad lengths written to it are counted and skipped, as a dccomms receiver
-    would.  `link`: also make a symlink with that name to the pty (like a udev name)."""
-
-    def __init__(self, backend: ModemBackend, *, link: str | None = None, max_payload: int | None = None,
-                 stall_timeout: float = 2.0, framing: fr.Framing | str | None = None) -> None:
-        self.backend = backend
-        self.link = link
-        if framing is None:       # the scene's txPacketBuilder of the modem (the broker's info), else CRC16
-            info = backend.info() if hasattr(backend, "info") else {}
-            framing = info.get("tx_framing") if isinstance(info, dict) else None
-        self.framing = fr.builder(framing) if isinstance(framing, str) and framing else \
-            (framing if isinstance(framing, fr.Framing) else fr.DEFAULT)
-        self.max_payload = self.framing.max_payload if max_payload is None else max_payload
-        self.decoder = dl.FrameDecoder(max_payload=self.max_payload, stall_timeout=stall_timeout,
-                                       framing=self.framing)
-        self.counters: Counter[str] = Counter()
-        self.path = ""
-        self._io = LoopThread(f"uwsimnet-emu-serial-{backend.id}")
-        self._master = -1
-        self._slave = -1
-        self._stream: FdStream | None = None
-        self._ticker: asyncio.Task | None = None
-
-    def start(self) -> str:
-        self._master, self._slave = os.openpty()
-        set_raw(self._slave)
-        set_raw(self._master)
-        self.path = os.ttyname(self._slave)
-        if self.link:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(self.link)
-            os.symlink(self.path, self.link)
-        self._io.start()
-        self._io.submit(self._start)
-        self.backend.on_frame.append(self._bk_frame)
-        return self.link or self.path
-
-    def _start(self) -> None:
-        self._stream = FdStream(self._io.loop, self._master, self._on_data, self._lost)
-        self._ticker = self._io.loop.create_task(self._tick())
-
-    async def _tick(self) -> None:
-        while True:
-            await asyncio.sleep(0.1)
-            self._events(self.decoder.expire(time.monotonic()))
-
-    def close(self) -> None:
-        detach(self.backend, self._bk_frame)
-        self._io.shutdown(self._close)
-        if self._slave >= 0:
-            with contextlib.suppress(OSError):
-                os.close(self._slave)
-            self._slave = -1
-        if self.link:
-            with contextlib.suppress(OSError):
-                os.unlink(self.link)
-
-    def _close(self) -> None:
-        if self._ticker is not None:
-            self._ticker.cancel()
-        if self._stream is not None:
-            self._stream.close()
-
-    def __enter__(self) -> SerialRadioEmulator:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def _lost(self, exc: BaseException | None) -> None:
-        log.warning("%s: pty closed (%s)", self.backend.id, exc)
-
-    def _on_data(self, data: bytes) -> None:
-        self.counters["bytes_in"] += len(data)
-        self._events(self.decoder.feed(data, time.monotonic()))
-
-    def _events(self, events: list[dl.FrameEvent]) -> None:
-        for ev in events:
-            if isinstance(ev, dl.FrameReceived):
-                f = ev.frame
-                if self.framing.addressed and f.src != self.backend.address:
-                    self.counters["src_mismatch"] += 1
-                self.counters["tx"] += 1
-                self.backend.send(f.dst, f.payload)
-            else:
-                self.counters[type(ev).__name__] += 1
-                if isinstance(ev, dl.Garbage):       # line noise, notifications: routine on a serial line
-                    log.info("%s: %d bytes of garbage on the pty skipped", self.backend.id, len(ev.data))
-                else:                                # a frame the application meant to send was lost
-                    log.warning("%s: %s on the pty, frame skipped", self.backend.id, _frame_error(ev))
-
-    def _bk_frame(self, f: BackendFrame) -> None:
-        if (self.framing.addressed and not (0 <= f.src <= 255 and 0 <= f.dst <= 255)) \
-                or len(f.data) > self.max_payload or self.framing.check_payload(len(f.data)) is not None:
-            self.counters["rx_unrepresentable"] += 1
-            return
-        self.counters["rx"] += 1
-        self._io.call(self._write, self.framing.encode(f.data, dst=f.dst, src=f.src))
-
-    def _write(self, data: bytes) -> None:
-        if self._stream is not None:
-            self._stream.write(data)
-
-    def info(self) -> dict[str, Any]:
-        return {"path": self.path, "link": self.link, "counters": dict(self.counters),
-                "decoder": dict(self.decoder.counters)}

@@ -1,4 +1,4 @@
-"""A transparent serial radio (WFS Seatooth S100 style) with dccomms DataLinkFrame framing.
+"""A transparent serial radio (WFS Seatooth S100 style) with dccomms framing (DataLinkFrame by default).
 
 The radio itself has no addressing: whatever bytes go into its serial port come out of the other
 radios' ports.  dccomms puts a DataLinkFrame (`55 55 | dst | src | len BE | payload | CRC16 BE`) around
@@ -7,7 +7,7 @@ and every valid frame read from the port becomes a received frame.  Garbage betw
 and impossible lengths are reported (`on_event`, kind protocol-error) and skipped; the decoder
 resynchronises on the next preamble.
 
-The port is a serial device or a pty path (an emulator's, see `emulators.SerialRadioEmulator`), put in
+The port is a serial device or a pty path (an emulator's, see `dccomms.emulator.SerialRadioEmulator`), put in
 raw mode with termios (no echo, no line discipline, 8N1, `baud`).  Frames for other addresses are
 dropped unless `promiscuous=True` (as the original: without a MAC, dccomms applications filter).
 
@@ -22,10 +22,10 @@ import time
 import tty
 from typing import Any
 
-from ..phy import framing as fr
-from . import dccomms_framing as dl
-from ._aio import FdStream
-from .base import Driver, RxFrame
+from ...formats import dccomms as fr
+from ...formats import dccomms_stream as ds
+from .._aio import FdStream
+from ..base import Driver, RxFrame
 
 BAUDS = {n: getattr(termios, f"B{n}") for n in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
          if hasattr(termios, f"B{n}")}
@@ -61,9 +61,10 @@ class SerialRadioDriver(Driver):
     def __init__(self, path: str, address: int, modem_id: str | None = None, *, baud: int | None = 9600,
                  promiscuous: bool = False, stall_timeout: float = 2.0, framing: fr.Framing | str | None = None,
                  **kw: Any) -> None:
-        if not 0 <= address <= 254:
-            raise ValueError(f"a dccomms address is one byte below 255, got {address}")
         self.framing = fr.builder(framing) if isinstance(framing, str) else (framing or fr.DEFAULT)
+        top = min(254, self.framing.max_address) if self.framing.addressed else 254
+        if not 0 <= address <= top:
+            raise ValueError(f"a {self.framing.name} address is 0..{top}, got {address}")
         """The dccomms framing on the serial line (default DataLinkFrame CRC16; dccomms_s100_bridge used a
         SimplePacket by default): frames of framings without addresses are heard by every radio."""
         kw.setdefault("max_payload", self.framing.max_payload)
@@ -71,7 +72,7 @@ class SerialRadioDriver(Driver):
         self.path = path
         self.baud = baud
         self.promiscuous = promiscuous
-        self.decoder = dl.FrameDecoder(max_payload=self.max_payload, stall_timeout=stall_timeout,
+        self.decoder = ds.FrameDecoder(max_payload=self.max_payload, stall_timeout=stall_timeout,
                                        framing=self.framing)
         self._stream: FdStream | None = None
 
@@ -85,7 +86,7 @@ class SerialRadioDriver(Driver):
         self._on_bytes(data)
 
     def _check(self, dst: int, data: bytes) -> str | None:
-        if not 0 <= dst <= 255:
+        if not 0 <= dst <= 255 or (self.framing.addressed and dst != fr.BROADCAST and dst > self.framing.max_address):
             return "invalid"
         if len(data) > self.max_payload or self.framing.check_payload(len(data)) is not None:
             return "size"
@@ -106,27 +107,28 @@ class SerialRadioDriver(Driver):
 
     def _on_link_lost(self) -> None:
         self._stream = None
-        self.decoder = dl.FrameDecoder(max_payload=self.max_payload, stall_timeout=self.decoder.stall_timeout,
+        self.decoder = ds.FrameDecoder(max_payload=self.max_payload, stall_timeout=self.decoder.stall_timeout,
                                        framing=self.framing)
 
-    def _events(self, events: list[dl.FrameEvent]) -> None:
+    def _events(self, events: list[ds.FrameEvent]) -> None:
         for ev in events:
-            if isinstance(ev, dl.FrameReceived):
+            if isinstance(ev, ds.FrameReceived):
                 f = ev.frame
-                if not self.promiscuous and f.dst not in (self.address, dl.BROADCAST):
+                if f.kind != "data":                     # DcMac rts/cts/sync: the MAC's, no payload to hand up
+                    self.counters[f"control_{f.kind}"] += 1
+                    continue
+                if not self.promiscuous and f.dst not in (self.address, ds.BROADCAST):
                     self.counters["rx_not_for_us"] += 1
                     continue
-                self.emit_frame(RxFrame(f.src, f.dst, f.payload, time.time(), meta={"size": len(ev.raw)}))
-            elif isinstance(ev, dl.Garbage):
+                meta: dict[str, Any] = {"size": len(ev.raw)}
+                if f.seq is not None:                    # a SimplePacket's own seq: the sender app's
+                    meta["aseq"] = f.seq
+                self.emit_frame(RxFrame(f.src, f.dst, f.payload, time.time(), meta=meta))
+            elif isinstance(ev, ds.Garbage):
                 self.emit_event("protocol-error", f"garbage: {len(ev.data)} bytes outside any frame", ev.data)
-            elif isinstance(ev, dl.BadCrc):
-                self.emit_event("protocol-error", f"bad CRC in a frame {ev.src}->{ev.dst} of {ev.length} bytes",
-                                ev.raw)
-            elif isinstance(ev, dl.BadLength):
-                self.emit_event("protocol-error", f"bad length {ev.length} (max {self.max_payload})", ev.raw)
-            elif isinstance(ev, dl.Truncated):
-                self.emit_event("protocol-error", f"truncated frame ({len(ev.raw)} of {ev.expected} bytes)",
-                                ev.raw)
+            else:
+                self.emit_event("protocol-error", ds.describe(ev) + (f" (max {self.max_payload})"
+                                if isinstance(ev, ds.BadLength) else ""), ev.raw)
 
     def _info(self) -> dict[str, Any]:
         return {"path": self.path, "baud": self.baud, "promiscuous": self.promiscuous, "framing": self.framing.name,

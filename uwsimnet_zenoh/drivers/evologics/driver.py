@@ -42,8 +42,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from . import evologics_at as at
-from .base import Driver, RxFrame, StreamLink, TxRequest
+from ...formats import evologics_at as at
+from ..base import Driver, RxFrame, StreamLink, TxRequest
 
 
 @dataclass
