@@ -12,8 +12,12 @@ serves in the HIL case; its hardware is the emulated b-m.
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import socket
+import subprocess
 import time
+from pathlib import Path
 
 import pytest
 
@@ -235,3 +239,115 @@ def test_bad_clients_get_one_log_line_and_the_others_are_served(net):
                     ("for agent 'uwlink'", 1), ("unknown action 'teleport'", 1), ("does not read", 1)):
         assert sum(what in x for x in gw.err) == n, (what, gw.err[-20:])
     assert net["broker"].p.poll() is None and gw.p.poll() is None
+
+
+def test_bad_command_lines_are_one_line_errors(net):
+    if net["kind"] != "sim":
+        pytest.skip("the command line is the same in both worlds")
+    busy = net["ports"]["A"]
+    for argv, want in ((["--id=nosuch-m", "--port", "0"], "nosuch-m: no simulator or driver serves this modem"),
+                       (["--id", "a-m", "--port", str(busy)], f"bridge unet: cannot listen on 127.0.0.1:{busy}")):
+        p = subprocess.run([*UWSIMNET, "bridge", "unet", *argv, "--world", WORLD, "--connect",
+                            net["broker"].endpoint], capture_output=True, text=True, timeout=60)
+        assert p.returncode == 2 and p.stderr.strip().startswith(want) and len(p.stderr.splitlines()) == 1, p
+
+
+def test_fjage_js_client(net, tmp_path):
+    """fjåge's JavaScript gateway (npm `fjage`, what unet.js is built on) in Node: directory, parameters,
+    a DatagramReq A -> B.  Needs node and FJAGE_JS_DIR, a directory where `npm install fjage@2.3.1` ran."""
+    js = os.environ.get("FJAGE_JS_DIR")
+    if net["kind"] != "sim" or shutil.which("node") is None or not js or not Path(js, "node_modules/fjage").is_dir():
+        pytest.skip("set FJAGE_JS_DIR to a directory with node_modules/fjage (npm install fjage@2.3.1), sim only")
+    (tmp_path / "node_modules").symlink_to(Path(js, "node_modules").resolve())
+    script = tmp_path / "unet_fjage_js.mjs"
+    script.write_text((Path(__file__).parent / "unet_fjage_js.mjs").read_text())
+    p = subprocess.run(["node", str(script), str(net["ports"]["A"]), str(net["ports"]["B"]), "31"],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    assert out["node"] == "node" and out["address"] == 232 and out["location"] == [0, 0, 0] and out["nodeName"] == "A"
+    assert out["MTU"] == 2047 and out["dataRate2"] == BITRATE and out["agents"] == ["phy"] and out["contains"]
+    assert out["agree"] == "AGREE"
+    ntf = out["ntf"]
+    assert ntf["from"] == 232 and ntf["to"] == 31 and ntf["protocol"] == 32 and ntf["data"] == [1, 2, 3, 200]
+    air, _ = modelled_delay(4, "A", "B")
+    assert abs(ntf["dt_us"] / 1e6 - air) < 0.005
+
+
+def test_sockets_follow_a_hil_swap(tmp_path):
+    """B's node starts on b-hw, simulated (address 131, alone on channel 1); a real driver then takes b-hw over
+    with the emulated b-m (31) as its hardware: the node announces the new address (ParamChangeNtf), unetpy's
+    socket takes it, and datagrams to 31 reach it."""
+    scene = tmp_path / "swap.xml"
+    scene.write_text(scene_xml(world=WORLD, channels=(0, 1), vehicles=(
+        f"<vehicle><name>A</name><position>0 0 0</position>{device_xml('a-m', 232)}</vehicle>"
+        f"<vehicle><name>B</name><position>300 0 0</position>{device_xml('b-m', 31)}"
+        f"{device_xml('b-hw', 131, ch=1)}</vehicle>")))
+    started: list[Proc] = []
+    try:
+        broker = Broker(scene, tmp_path / "trace.jsonl")
+        started.append(broker)
+        gw = Proc([*UWSIMNET, "bridge", "unet", "--id", "a-m", "--id", "b-hw", "--connect", broker.endpoint])
+        started.append(gw)
+        ready = [gw.expect(f"uwsimnet: bridge unet ready for {WORLD}/{dev} ", 30) for dev in ("a-m", "b-hw")]
+        ports = [int(x.split("tcp 127.0.0.1:")[1].split()[0]) for x in ready]
+        port = free_port()
+        emu = Proc([*UWSIMNET, "emulate", "evologics", "--port", str(port), "--id", "b-m", "--connect",
+                    broker.endpoint])
+        started.append(emu)
+        emu.expect("uwsimnet: emulator evologics ready", 20)
+        with UnetSocket("127.0.0.1", ports[0]) as a, UnetSocket("127.0.0.1", ports[1]) as b:
+            assert b.getLocalAddress() == 131 and b.localAddress == 131
+            drv = Proc([*UWSIMNET, "driver", "evologics", "--host", "127.0.0.1", "--port", str(port), "--id",
+                        "b-hw", "--connect", broker.endpoint])
+            started.append(drv)
+            drv.expect("uwsimnet: driver evologics ready", 20)
+            deadline = time.time() + 20
+            while b.localAddress != 31 and time.time() < deadline:
+                time.sleep(0.05)
+            assert b.localAddress == 31 and b.getLocalAddress() == 31, (b.getLocalAddress(), gw.output())
+            b.bind(Protocol.USER)
+            b.setTimeout(5000)
+            assert a.send(b"to the hardware", to=31, protocol=Protocol.USER)
+            ntf = b.receive()
+            assert isinstance(ntf, DatagramNtf) and payload(ntf) == b"to the hardware" and ntf.from_ == 232
+        assert sum("address 131 -> 31" in x for x in gw.err) >= 1, gw.output()
+    finally:
+        errors = stop_all(started)
+        assert not errors, errors
+
+
+def test_fjage_c_client(net, tmp_path):
+    """fjåge's C gateway (org-arl/fjage gateways/c/src) built with cc: directory, parameters, a DatagramReq
+    A -> B.  Needs FJAGE_C_SRC, that source directory (the test does not carry third-party C)."""
+    src = os.environ.get("FJAGE_C_SRC")
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if net["kind"] != "sim" or cc is None or not src or not Path(src, "fjage.c").is_file():
+        pytest.skip("set FJAGE_C_SRC to fjage's gateways/c/src (and have cc), sim only")
+    exe = tmp_path / "unet_fjage_c"
+    subprocess.run([cc, "-std=gnu99", "-O2", f"-I{src}", "-o", str(exe), str(Path(__file__).parent / "unet_fjage_c.c"),
+                    *(str(Path(src, f)) for f in ("fjage.c", "jsmn.c", "decode.c", "encode.c")), "-lm"],
+                   check=True, timeout=120)
+    p = subprocess.run([str(exe), str(net["ports"]["A"]), str(net["ports"]["B"]), "31"], capture_output=True,
+                       text=True, timeout=60)
+    assert p.returncode == 0, (p.stdout, p.stderr)
+    got = dict(kv.split("=", 1) for kv in p.stdout.split())
+    air, _ = modelled_delay(4, "A", "B")
+    assert got == {"address": "232", "nodeName": "A", "MTU": "2047", "dataRate": f"{BITRATE:.0f}", "agree": "1",
+                   "from": "232", "n": "4", "data": "1,2,3,200", "dt_us": got["dt_us"]}
+    assert abs(int(got["dt_us"]) / 1e6 - air) < 0.005
+
+
+def test_all_modems_of_the_world(net):
+    if net["kind"] != "sim":
+        pytest.skip("once is enough")
+    gw = Proc([*UWSIMNET, "bridge", "unet", "--all", "--world", WORLD, "--connect", net["broker"].endpoint])
+    try:
+        ready = [gw.expect("uwsimnet: bridge unet ready for ", 30) for _ in range(5)]
+        devs = [x.split(f"{WORLD}/")[1].split()[0] for x in ready]
+        assert devs == ["a-m", "b-m", "b-hw", "c-m", "d-m"]
+        port = int(ready[-1].split("tcp 127.0.0.1:")[1].split()[0])
+        with UnetSocket("127.0.0.1", port) as d:
+            assert d.getLocalAddress() == 9
+    finally:
+        assert gw.stop() == 0, gw.output()

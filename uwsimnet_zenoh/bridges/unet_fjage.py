@@ -85,9 +85,11 @@ def send(clazz: str, data: dict[str, Any]) -> bytes:
 
 
 def reply(req: dict[str, Any], clazz: str, perf: str, sender: str, **fields: Any) -> bytes:
-    """A message in reply to the message `req` (its `data`): to its sender, `inReplyTo` its msgID."""
-    return send(clazz, {"perf": perf, "recipient": req.get("sender"), "sender": sender,
-                        "inReplyTo": req.get("msgID"), **fields})
+    """A message in reply to the message `req` (its `data`): to its sender, `inReplyTo` its msgID.  Its own
+    fields first, then Message's (the order fjåge's Java classes declare them in): fjåge's C gateway reads
+    the data's keys pairwise and loses its place after an array, so an array goes after what it reads."""
+    return send(clazz, {**fields, "perf": perf, "recipient": req.get("sender"), "sender": sender,
+                        "inReplyTo": req.get("msgID")})
 
 
 def byte_array(data: bytes) -> dict[str, str]:

@@ -20,6 +20,7 @@ import contextlib
 import logging
 import math
 import threading
+import time
 from collections import Counter, deque
 from typing import Any
 
@@ -132,7 +133,12 @@ class UnetGateway:
         """Address, data rate and MTU from the modem's info (its server's: the simulator or a driver);
         vehicle, names and the first location from the world's state; then follow the vehicle's poses."""
         assert self.modem is not None
-        info = self.modem.info(timeout=self.wait) or {}
+        deadline = time.monotonic() + self.wait
+        while True:         # during a swap the one that leaves may still answer: wait for the one that serves
+            info = self.modem.info(timeout=min(2.0, self.wait)) or {}
+            if info.get("kind") == self.modem.kind or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
         state: dict[str, Any] = {}
         with contextlib.suppress(Exception):
             state = self.world.control("state", timeout=self.wait)
@@ -145,6 +151,7 @@ class UnetGateway:
                 if isinstance(m.get("vehicle"), str):
                     names.setdefault(m["vehicle"], m["address"])
         address = info.get("address", me.get("address"))
+        before = self.address
         with self._lock:
             self.address = int(address) if isinstance(address, int) else -1
             self.vehicle = info.get("vehicle") or me.get("vehicle")
@@ -162,6 +169,11 @@ class UnetGateway:
             self.names[self.vehicle] = self.address            # a real modem answers with its own address
         if self._pose_sub is None and self.vehicle:
             self._pose_sub = self.world.session.declare_subscriber(self.world.keys.pose(self.vehicle), self._zpose)
+        if before >= 0 and self.address != before:         # e.g. a real modem took over: apps follow
+            log.warning("%s: address %d -> %d (%s)", self.id, before, self.address, self.modem.kind)
+            self._io.call(self.publish, "#node__ntf", fj.send("org.arl.unet.ParamChangeNtf", {
+                "perf": "INFORM", "recipient": "#node__ntf", "sender": "node",
+                "paramValues": {NODE_P + "address": self.address}}))
         if self.address == BROADCAST or self.address == UNET_BROADCAST:
             log.warning("%s: address %d is a broadcast address in UnetStack or here", self.id, self.address)
 
@@ -388,10 +400,15 @@ class UnetGateway:
                 values["description"] = f"{agent} of modem {self.id} (uwsimnet-zenoh)"
             elif short == "type":
                 values["type"] = TYPES[agent]
-        out: dict[str, Any] = {"index": index, "readonly": list(values)}
+        out: dict[str, Any] = {"index": index}
+        readonly = list(values)
         if values:
             first = next(iter(values))
-            out.update(param=first, value=values.pop(first), values=values)
+            value = values.pop(first)
+            if values:
+                out["values"] = values
+            out.update(param=first, value=value)
+        out["readonly"] = readonly              # last, as fjåge's ParameterRsp has it (see fj.reply)
         return fj.reply(m, "org.arl.fjage.param.ParameterRsp", "INFORM", agent, **out)
 
 

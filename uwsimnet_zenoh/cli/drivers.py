@@ -6,7 +6,7 @@ a running broker (docs/drivers.md, docs/bridges.md).
     uwsimnet emulate evologics --port P --id X [--world W] [--connect E]         # AT server for simulated X
     uwsimnet emulate serial --id X [--link PATH] [--world W] [--connect E]       # dccomms-framed pty for X
     uwsimnet bridge socket --port P --id X ...  /  uwsimnet bridge mq --id X ...
-    uwsimnet bridge unet --id X [--id Y ...] [--port P]                          # UnetStack nodes (fjåge JSON)
+    uwsimnet bridge unet --id X [--id Y ...] | --all [--port P]                  # UnetStack nodes (fjåge JSON)
 
 Each prints one `uwsimnet: ... ready` line on stdout once it serves, and runs until SIGINT/SIGTERM.
 """
@@ -104,7 +104,9 @@ def add_commands(sub: Any) -> None:
     common(bm)
     bm.set_defaults(fn=cmd_bridge)
     bu = bsub.add_parser("unet", help="a UnetStack node (fjåge JSON over TCP) per modem, docs/unetstack.md")
-    bu.add_argument("--id", action="append", required=True, help="a modem's dccommsId (repeat: one node each)")
+    who = bu.add_mutually_exclusive_group(required=True)
+    who.add_argument("--id", action="append", help="a modem's dccommsId (repeat: one node each)")
+    who.add_argument("--all", action="store_true", help="every modem of the world, in the scene's order")
     bu.add_argument("--port", type=int, default=0, help="TCP port of the first node, the next ones follow"
                     " (0: free ones, printed)")
     bu.add_argument("--host", default="127.0.0.1", help="address to listen on")
@@ -258,12 +260,19 @@ def cmd_bridge_unet(args: argparse.Namespace) -> int:
     from ..drivers._aio import listen_error
 
     _log()
-    ids = tuple(dict.fromkeys(args.id))
-    _precheck(args, "modem", ids)
+    ids = tuple(dict.fromkeys(args.id or ()))          # --all: () = every modem, for the access check
+    uses = ("modem", "info", "control")          # + pose/<vehicle> when allowed (else the state's positions)
+    for program in uses:
+        _precheck(args, program, ids)
     with _session(args) as s:
         world = _world(s, args)
-        check_access(args, "modem", world, ids)
+        for program in uses:
+            check_access(args, program, world, ids)
         with World(world, session=s) as w, contextlib.ExitStack() as stack:
+            if args.all:
+                ids = tuple(dict.fromkeys(dev for r in w.control_all("state") for dev in r.get("modems") or {}))
+                if not ids:
+                    raise UserError(f"bridge unet --all: no broker of world {world!r} answers with its modems")
             for i, dev in enumerate(ids):
                 port = args.port + i if args.port else 0
                 gw = UnetGateway(w, dev, args.host, port)

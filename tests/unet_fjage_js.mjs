@@ -1,0 +1,32 @@
+// fjage.js (npm fjage 2.3.1) against two nodes of `uwsimnet bridge unet`: node tests/unet_fjage_js.mjs PORT_A PORT_B ADDR_B
+// (run from a directory whose node_modules holds fjage; tests/test_unet_gateway.py does).
+import { Gateway, MessageClass } from 'fjage';
+const DatagramReq = MessageClass('org.arl.unet.DatagramReq');
+const DatagramNtf = MessageClass('org.arl.unet.DatagramNtf');
+const out = {};
+const a = new Gateway({ hostname: '127.0.0.1', port: process.argv[2] });
+const b = new Gateway({ hostname: '127.0.0.1', port: process.argv[3] });
+const nodeA = await a.agentForService('org.arl.unet.Services.NODE_INFO');
+out.node = nodeA ? nodeA.name : null;
+out.address = await nodeA.get('address');
+out.location = await nodeA.get('location');
+out.nodeName = await nodeA.get('nodeName');
+const phyA = await a.agentForService('org.arl.unet.Services.PHYSICAL');
+out.MTU = await phyA.get('MTU');
+out.dataRate2 = await phyA.get('dataRate', 2);
+out.agents = (await a.agentsForService('org.arl.unet.Services.DATAGRAM')).map(x => x.name);
+out.contains = await a.containsAgent(phyA);
+const phyB = await b.agentForService('org.arl.unet.Services.PHYSICAL');
+b.subscribe(b.topic(phyB));
+const req = new DatagramReq();
+req.to = parseInt(process.argv[4]); req.protocol = 32; req.data = [1, 2, 3, 200];
+req.recipient = phyA;
+const t0 = Date.now();
+const rsp = await a.request(req, 5000);
+out.agree = rsp ? rsp.perf : null;
+const ntf = await b.receive(m => m instanceof DatagramNtf, 5000);
+out.wall_ms = Date.now() - t0;
+out.ntf = ntf ? { from: ntf.from, to: ntf.to, protocol: ntf.protocol, data: Array.from(ntf.data), dt_us: ntf.rxTime - ntf.txTime } : null;
+console.log(JSON.stringify(out));
+a.close(); b.close();
+process.exit(0);
