@@ -11,6 +11,7 @@ serves in the HIL case; its hardware is the emulated b-m.
 
 from __future__ import annotations
 
+import faulthandler
 import json
 import os
 import shutil
@@ -37,6 +38,15 @@ NODES = {  # name: (device, address, position)
     "D": ("d-m", 9, (1000.0, 0.0, 0.0)),
 }
 
+
+
+@pytest.fixture(autouse=True)
+def _no_hang():
+    """unetpy's BLOCKING calls wait without a timeout: a lost notification would hang the suite, so a test
+    that has not ended in 3 minutes ends its worker with every thread's stack (a failure, not a hang)."""
+    faulthandler.dump_traceback_later(180, exit=True)
+    yield
+    faulthandler.cancel_dump_traceback_later()
 
 def _scene() -> str:
     vehicles = []

@@ -421,6 +421,7 @@ class _Client(ServerClient):
         self.peer = "?"
         self.gone = False
         self._held: deque[tuple[float, bytes]] = deque()
+        self._quiet_until = 0.0         # loop time before which nothing may follow the last answer
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         if self.accept(transport, self.gw.closing):
@@ -453,16 +454,22 @@ class _Client(ServerClient):
         log.warning("%s: client %s sent %s; skipped", self.gw.id, self.peer, why)
 
     def answer(self, data: bytes) -> None:
-        """A reply to a request: after REPLY_DELAY_S."""
-        self.write(data, REPLY_DELAY_S)
+        """A reply to a request: after REPLY_DELAY_S, and a notification after it REPLY_DELAY_S later still."""
+        self.write(data, REPLY_DELAY_S, answer=True)
 
-    def write(self, data: bytes, delay: float = 0.0) -> None:
-        """In order: what comes after a delayed answer waits for it."""
-        if delay <= 0 and not self._held:
+    def write(self, data: bytes, delay: float = 0.0, answer: bool = False) -> None:
+        """In order: what comes after a delayed answer waits for it, and leaves REPLY_DELAY_S after it
+        (fjagepy reads an AGREE, then registers the waiter of the notification that follows: a
+        TxFrameNtf of a short frame written right behind the AGREE could fall between its queue check
+        and that registration, and a BLOCKING send would wait for ever)."""
+        loop = self.gw._io.loop
+        now = loop.time()
+        t = now + delay if answer else max(now + delay, self._quiet_until)
+        if answer:
+            self._quiet_until = max(self._quiet_until, t + REPLY_DELAY_S)
+        if t <= now and not self._held:
             self._put(data)
             return
-        loop = self.gw._io.loop
-        t = loop.time() + delay
         if self._held:
             t = max(t, self._held[-1][0])
         self._held.append((t, data))
