@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 unetpy = pytest.importorskip("unetpy", reason="unetpy is in the dev extra (pip install unetpy)")
-from test_broker_e2e import UWSIMNET, WALL_SLACK, Broker, Proc, device_xml, free_port, scene_xml, stop_all  # noqa: E402
+from test_broker_e2e import UWSIMNET, Broker, Proc, device_xml, free_port, scene_xml, stop_all  # noqa: E402
 from unetpy import DatagramNtf, Protocol, RxFrameNtf, Services, TxFrameNtf, TxFrameReq, UnetSocket  # noqa: E402
 
 from uwsimnet_zenoh.drivers.evologics.emulator import im_duration_us  # noqa: E402
@@ -38,6 +38,9 @@ NODES = {  # name: (device, address, position)
     "D": ("d-m", 9, (1000.0, 0.0, 0.0)),
 }
 
+
+
+LATE_BOUND_S = 1.0
 
 
 @pytest.fixture(autouse=True)
@@ -156,7 +159,9 @@ def test_datagram_arrives_after_the_modelled_delay(net):
             assert ntf.protocol == Protocol.USER
             air, total = modelled_delay(len(data), sname, dname)
             total += net["rx_latency"](dname, len(data) + 1)
-            assert total - 0.001 <= wall <= total + WALL_SLACK, (wall, total)
+            # never early; how late depends on the machine's load (the wall-clock error is measured, not
+            # asserted: docs/unetstack.md), so the bound above only catches a frame held for no reason
+            assert total - 0.001 <= wall <= total + LATE_BOUND_S, (wall, total)
             if dname == "A":      # a simulated receiver: the simulation's own times of the frame
                 assert abs((ntf.rxTime - ntf.txTime) / 1e6 - air) < 0.005, (ntf.rxTime - ntf.txTime, air)
 
