@@ -88,10 +88,7 @@ def simulate(scene, *, seed: int | None, duration: float | None, trace_path: Pat
     if plugin is not None:
         net.tracer.add(plugin)
     meta = net.meta()
-    acc = None
-    if metrics:
-        acc = Accumulator(meta)
-        acc.follow(net.tracer)
+    acc = Accumulator(meta) if metrics else None
     failed: BaseException | None = None
     with ExitStack() as files:
         jsonl = None
@@ -110,6 +107,8 @@ def simulate(scene, *, seed: int | None, duration: float | None, trace_path: Pat
                 files.callback(jsonl.flush)     # before the file closes (an ExitStack unwinds in reverse)
                 jsonl.header(meta)
                 net.tracer.consume(jsonl.write_batch)
+        if acc is not None:
+            acc.follow(net.tracer)              # (after the writers: it shares their batches if there are)
         files.callback(net.tracer.flush)        # the last batch, before the writers close (also on ^C ^C)
         failed = _run_to_end(net, progress)
         net.tracer.flush()

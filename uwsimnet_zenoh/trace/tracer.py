@@ -275,6 +275,11 @@ class Tracer:
             if listener in lst:
                 lst.remove(listener)
 
+    @property
+    def batching(self) -> bool:
+        """Does the port make batches (a `consume`r listens)?"""
+        return self._batcher is not None
+
     def add(self, fn: Callable[[Record], None]) -> None:
         """`fn(record)` of every frame event (a `Records` listener)."""
         self.listen(Records(fn))
