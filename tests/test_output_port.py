@@ -114,3 +114,15 @@ def test_sim_backend_outcomes_are_the_port_events_at_the_addressee():
     assert math.isclose(prop, MIN_S + PER_M * 300.0, rel_tol=1e-12)   # the channel's law at 300 m
     assert a._pending == {}                               # every awaited outcome came: nothing held
     w.close()
+
+
+def test_sim_backend_frames_carry_the_distance_the_channel_used():
+    w = SimWorld(three(), clock="virtual")
+    got = []
+    w.backend("b").on_frame.append(got.append)
+    w.backend("a").send(2, b"hello", tag=1)
+    w.run(10.0)
+    (f,) = got
+    assert f.data == b"hello" and f.distance == 300.0
+    assert math.isclose(f.prop_time, MIN_S + PER_M * 300.0, rel_tol=1e-12)
+    w.close()
