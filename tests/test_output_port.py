@@ -126,3 +126,31 @@ def test_sim_backend_frames_carry_the_distance_the_channel_used():
     assert f.data == b"hello" and f.distance == 300.0
     assert math.isclose(f.prop_time, MIN_S + PER_M * 300.0, rel_tol=1e-12)
     w.close()
+
+
+def test_a_realtime_run_has_the_virtual_runs_outputs_a_compressed_trace_too(tmp_path):
+    """app/outputs.py serves both clocks: a realtime run writes a `.gz` trace, whole, meta first and the end
+    record last, every frame conserved, and its summary from the same online metrics."""
+    import gzip
+    import json
+    import subprocess
+
+    from test_broker_e2e import free_port
+    from test_run_end import ROOT, UWSIMNET
+    from test_run_end import scene as run_scene
+
+    from uwsimnet_zenoh.analysis import analyse
+
+    port = free_port()
+    sc = tmp_path / "s.xml"
+    sc.write_text(run_scene(duration=2, clock="realtime", port=port))
+    trace = tmp_path / "t.jsonl.gz"
+    r = subprocess.run([*UWSIMNET, "run", str(sc), "--trace", str(trace), "--listen", f"tcp/127.0.0.1:{port}"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    recs = [json.loads(line) for line in gzip.decompress(trace.read_bytes()).decode().splitlines()]
+    assert recs[0]["ev"] == "meta" and recs[0]["clock"] == "realtime"
+    assert recs[-1]["ev"] == "end" and recs[-1]["reason"] == "duration"
+    a = analyse(trace, horizon=0.0)
+    assert a.conservation.ok, a.conservation.violations[:5]
+    assert "ab" in r.stdout and sum(m.delivered for m in a.flows.values()) > 0
