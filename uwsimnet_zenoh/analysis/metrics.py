@@ -282,10 +282,14 @@ class Accumulator:
             self._fold.rows(pending, [r[0] for r in pending])
 
     def follow(self, tracer: Any) -> None:
-        """Take a run's events as they happen: the fold listens to the output port (called at once, natively
-        when compiled, with no row built for it)."""
+        """Take a run's events as they happen, from the output port: from its batches if it makes them already
+        (a trace writer listens: the rows and their rounded times are then shared), else each event at once
+        (natively when compiled, with no row built for it).  Call it after the trace writers are added."""
         self._drain()
-        tracer.listen(self._fold)
+        if tracer.batching:
+            tracer.consume(self.on_batch)
+        else:
+            tracer.listen(self._fold)
 
     def on_batch(self, b: Any) -> None:
         """A batch consumer (trace.events.Tracer.consume): the events of a `Batch`, their records' times

@@ -4,7 +4,7 @@
     network  the scene (restricted to --channels), flows of the scene except --external-flows
     clock    kernel/realtime.RealtimeClock: the engine on its own thread
     broker   bus/broker.Broker: the modems on their keys, poses, trace, clock, control
-    trace    the same JSONL as a virtual run (meta first), flushed every second and on exit
+    outputs  the same trace and metrics as a virtual run (app/outputs.py), the trace on disk every second
 
 SIGINT/SIGTERM (or the duration) stop the engine after the event it is running; then every frame
 without an outcome is dropped `stopped` (its application hears `dropped stopped` if the modem still
@@ -25,7 +25,6 @@ import signal
 import sys
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 from ..bus.router import StopOnSignal
@@ -43,6 +42,7 @@ from ..phy.channel import LIST_SLOTS
 from ..scene.model import Scene
 from . import ros2
 from .checks import build_network, plugin_failure, tracing_sink
+from .outputs import Outputs
 
 log = logging.getLogger("uwsimnet.bus.runtime")
 
@@ -210,10 +210,8 @@ def run_realtime(scene: Scene, args: Any) -> int:
 def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | None, external: set[str],
          hosted: Scene, foreign: set[str], trace: str | None) -> int:
     """The realtime run; `trace` None: no trace file (the summary's metrics are online either way)."""
-    from ..analysis import Accumulator
     from ..bus.broker import Broker
     from ..kernel.realtime import SPIN, RealtimeClock
-    from ..trace.events import JsonlSink
     from ..traffic.flow import FlowSource
 
     world = scene.world
@@ -272,31 +270,23 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                               " another endpoint") from None
         broker = None
         ros = None
-        fh = None
-        jsonl = None
         meta = net.meta()
         meta.update(clock="realtime", world=world, duration=duration,
                     channels=sorted(net.channels), external_flows=sorted(external))
-        acc = Accumulator(meta)                 # the summary's metrics, online (on the engine thread, at
-        acc.follow(net.tracer)                  # each event; read at the end)
+        # the trace file, the tracing plug-in and the summary's metrics (online, on the engine thread; read at
+        # the end), as a virtual run has them (app/outputs.py); closed in finally, after the engine
+        out = Outputs(net, meta, trace, plugin=plugin)
         try:
+            out.__enter__()
             if trace is not None:
-                Path(trace).parent.mkdir(parents=True, exist_ok=True)
-                fh = open(trace, "w", encoding="utf-8")  # noqa: SIM115 - closed in finally, after the engine
-                sink = JsonlSink(fh)
-                sink.header(meta)
-                jsonl = sink                    # written from the tracer's batches when the engine is
-                net.tracer.consume(sink.write_batch)    # idle, not between an event and its rx
                 last_flush = [time.monotonic()]
 
-                def write_trace() -> None:
-                    net.tracer.flush()
-                    if time.monotonic() - last_flush[0] > 1.0:      # on disk every second (tail -f works)
-                        fh.flush()
+                def write_trace() -> None:      # the trace when the engine is idle, not between an event
+                    net.tracer.flush()          # and its rx; on disk every second (tail -f works)
+                    if time.monotonic() - last_flush[0] > 1.0:
+                        out.flush()
                         last_flush[0] = time.monotonic()
                 clock.idle_hooks.append(write_trace)
-            if plugin is not None:
-                net.tracer.add(plugin)
             try:
                 broker = Broker(session, net, clock, world=world, channels=channels, foreign=foreign)
                 broker.start()
@@ -361,17 +351,11 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 broker.close()
                 summary["edge"] = broker.edge_summary()
                 summary["ingress_warn"] = broker.ingress_warn_s
-            end = net.end_record(reason, **extra)
-            net.tracer.flush()                  # the metrics' last batch
-            acc.ended = end["t"]
-            if fh is not None:
-                if jsonl is not None:
-                    jsonl(end)
-                fh.flush()
-                fh.close()
+            out.finish(net.end_record(reason, **extra))     # the last batch, the end record last
+            out.__exit__(None, None, None)
             session.close()
             faulthandler.cancel_dump_traceback_later()
-    _summary(acc, summary, net)
+    _summary(out.result(), summary, net)
     if trace is not None:
         print(f"trace: {trace}")
     e = clock.fatal or clock.first_error
@@ -384,13 +368,13 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
     return 0
 
 
-def _summary(acc: Any, s: dict[str, Any], net: Any) -> None:
+def _summary(analysis: Any, s: dict[str, Any], net: Any) -> None:
     from rich.console import Console
 
     from .virtual import show_metrics
 
     console = Console()
-    show_metrics(acc.result().flows)
+    show_metrics(analysis.flows)
     bad = {k: v for k, v in (s.get("bus") or {}).items() if k not in ("tx_messages", "poses")}
     if s.get("ros2"):
         bad["ros2"] = s["ros2"]

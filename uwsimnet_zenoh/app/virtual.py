@@ -1,29 +1,28 @@
 """Virtual-time runs: a scene file to a Network run to its end, its trace, and the summary table.
 
-The one assembly of Network + trace sinks for the virtual clock, used by `uwsimnet run`, the experiments and
-the tests (app/realtime.py is its realtime twin).  The summary is computed online, as the run goes
-(analysis.Accumulator consuming the tracer's batches of events, as the trace writers do), so a run without
---trace builds no record at all and a run with one never reads its trace back; `uwsimnet report` on the
-trace gives the same numbers."""
+Used by `uwsimnet run`, the experiments and the tests; its outputs (trace writer, tracing plug-in, online
+metrics) are assembled by app/outputs.py, as for the realtime clock (app/realtime.py).  The summary is
+computed online, as the run goes (analysis.Accumulator on the output port), so a run without --trace builds
+no record at all and a run with one never reads its trace back; `uwsimnet report` on the trace gives the
+same numbers."""
 
 from __future__ import annotations
 
 import gc
-import gzip
 import signal
 import sys
 import traceback
-from contextlib import ExitStack, contextmanager
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..analysis import Accumulator, Analysis, flow_metrics, show_metrics
+from ..analysis import Analysis, flow_metrics, show_metrics
 from ..engine.network import Network
 from ..errors import UserError
 from ..kernel.scheduler import Interrupted
 from ..scene.load import SceneError, load_scene
-from ..trace.events import ArrowSink, JsonlSink
 from .checks import Interrupt, build_network, tracing_sink
+from .outputs import Outputs
 
 
 def _warn(msg: str) -> None:
@@ -84,44 +83,13 @@ def simulate(scene, *, seed: int | None, duration: float | None, trace_path: Pat
     record.  An exception of the engine or a plug-in ends it the same way (reason `error`), then
     UserError."""
     net = build_network(scene, seed=seed, duration=duration)
-    plugin = tracing_sink(scene)
-    if plugin is not None:
-        net.tracer.add(plugin)
-    meta = net.meta()
-    acc = None
-    if metrics:
-        acc = Accumulator(meta)
-        acc.follow(net.tracer)
-    failed: BaseException | None = None
-    with ExitStack() as files:
-        jsonl = None
-        if trace_path is not None:
-            trace_path.parent.mkdir(parents=True, exist_ok=True)
-            if trace_path.suffix == ".arrow":
-                try:
-                    arrow = ArrowSink(trace_path, meta)
-                except ValueError as e:
-                    raise UserError(f"{trace_path}: {e}") from None
-                files.callback(arrow.close)
-                net.tracer.consume(arrow.write_batch)
-            else:
-                opener = gzip.open if trace_path.suffix == ".gz" else open
-                jsonl = JsonlSink(files.enter_context(opener(trace_path, "wb")))
-                files.callback(jsonl.flush)     # before the file closes (an ExitStack unwinds in reverse)
-                jsonl.header(meta)
-                net.tracer.consume(jsonl.write_batch)
-        files.callback(net.tracer.flush)        # the last batch, before the writers close (also on ^C ^C)
+    with Outputs(net, net.meta(), trace_path, metrics=metrics, plugin=tracing_sink(scene)) as out:
         failed = _run_to_end(net, progress)
-        net.tracer.flush()
-        if net.end is not None:
-            if jsonl is not None:
-                jsonl(net.end)                  # flushes the batched events first: the end record is last
-            if acc is not None:
-                acc.ended = net.end["t"]
+        out.finish(net.end)
     if failed is not None:
         raise UserError(f"{scene.source}: the run stopped at t={net.now:.6g} s: {type(failed).__name__}:"
                         f" {failed} (traceback above; the trace ends there)")
-    return VirtualRun(net, acc.result() if acc is not None else None)
+    return VirtualRun(net, out.result())
 
 
 def _run_to_end(net: Network, progress: bool) -> BaseException | None:

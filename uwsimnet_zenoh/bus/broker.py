@@ -16,16 +16,14 @@ on the key space of docs/gli-protocol.md:
   token goes the device is re-added from the scene and served again.
 
 Threading (the turn's rules: kernel/realtime.py): Zenoh callbacks run on Zenoh's network thread and hand
-raw bytes on: a tx message to its modem's ingress `Lane` (bounded; the engine takes the lanes round-robin,
-so a flood on one modem does not delay the others), run at once on the callback's thread when the engine
-waits (`clock.run_here`), anything else to `clock.call_soon`.
-Pose samples have no callback: they wait in a Zenoh ring channel that the engine takes from when it
-reads the geometry or idles (every 2 ms at least), each stamped with the time the router received it.
-Decoding and simulation never make a Zenoh put: rx, status, trace, pose and clock messages leave through
-bounded `Outbox`es (bus/outbox.py), one publisher thread each (one per modem), so a consumer that
-cannot keep up loses messages at the edge, counted per modem (`info` "edge", the run summary), and
-never stalls the engine or another modem.  A bad message never stops the broker: it is answered on
-the modem's `status` with `dropped` and a reason, counted, and logged (rate-limited).
+raw bytes on: a tx message to its modem's ingress `Lane` (bounded, taken round-robin: a flood on one modem
+does not delay the others), run at once when the engine waits (`clock.run_here`), else `clock.call_soon`.
+Pose samples wait in a Zenoh ring channel (bus/poses.py).  The simulation never makes a Zenoh put nor
+encodes: it hands the output port's rx, status and trace events to bounded `Outbox`es (bus/outbox.py), one
+thread each (one per modem), which encode and put, so a consumer that cannot keep up loses messages at the
+edge, counted (`info` "edge", the run summary), and never stalls the engine or another modem.  A bad message
+never stops the broker: it is answered on the modem's `status` with `dropped` and a reason, counted, and
+logged (rate-limited).
 """
 
 from __future__ import annotations
@@ -42,10 +40,10 @@ import zenoh
 from uwsimnet_gli import wire
 from uwsimnet_gli.wire import Keys, check_chunk, parse
 
-from ..trace.events import Batch, Listener, row_record
+from ..trace.events import Batch, Listener
 from ..trace.tracer import FRAME_EVENTS
 from .control import Control
-from .endpoint import BLOCK, ModemEndpoint
+from .endpoint import BLOCK, ModemEndpoint, put_record
 from .hil import RETOKEN, SWAP_IN, SWAP_OUT, HilSwap
 from .outbox import INGRESS_WARN_S, LANE_CAPACITY, OUTBOX_CAPACITY, POSE_KEYS, Lane, Latest, Outbox, Throttle
 from .poses import KEY_CACHE, POSE_RING, Poses
@@ -447,7 +445,7 @@ class Broker(Poses, Queries):
         pubs = self._trace_pubs
         for t9, r in zip(b.t9, b.rows, strict=True):
             pub = pubs.get(r[2])
-            if pub is not None and not out.put(pub.put, wire.pack(row_record(t9, r)), "trace"):
+            if pub is not None and not out.put(put_record, (pub, t9, r), "trace"):
                 self.counters["edge_trace"] += 1
 
     def _driver_change(self, key: str, present: bool) -> None:

@@ -1,8 +1,9 @@
-"""A modem's output on its Zenoh keys, written once for simulated and real modems.
+"""A modem's output on its Zenoh keys, written once for simulated and real modems (and a trace record's put).
 
 `ModemEndpoint` holds the `modem/<id>/rx` and `modem/<id>/status` publishers and the modem's outbox
-(bus/outbox.py): `rx(...)` and `status(...)` encode with the one wire (uwsimnet_gli.wire) and queue the
-put, never waiting.  The broker serves its simulated modems through it (bus/broker.py) and the driver
+(bus/outbox.py): `rx(...)` and `status(...)` queue the message's fields, never waiting; the outbox's thread
+encodes them with the one wire (uwsimnet_gli.wire) and puts, so the engine (the output port's listener)
+spends no time on encoding.  The broker serves its simulated modems through it (bus/broker.py) and the driver
 host its real ones (drivers/zenoh_host.py), so both publish with the same congestion control, the same
 message shapes and the same accounting of what a slow consumer lost (`stats()`, on `info` as `edge`).
 """
@@ -16,6 +17,7 @@ import zenoh
 from uwsimnet_gli import wire
 from uwsimnet_gli.wire import Keys
 
+from ..trace.events import row_record
 from .outbox import OUTBOX_CAPACITY, Outbox
 
 BLOCK = zenoh.CongestionControl.BLOCK
@@ -38,8 +40,9 @@ class ModemEndpoint:
 
     def rx(self, src: int, dst: int, data: bytes, seq: int, t_tx: float, t_rx: float,
            dist: float | None = None, msg: dict[str, Any] | None = None) -> bool:
-        """Queue an rx message; False if it was lost at the edge (counted in `out.dropped["rx"]`)."""
-        return self.out.put(self.rx_pub.put, wire.encode_rx(src, dst, data, seq, t_tx, t_rx, dist, msg), "rx")
+        """Queue an rx message; False if it was lost at the edge (counted in `out.dropped["rx"]`).  The fields
+        are taken now (a frame's `t_tx` changes if it is sent again), encoded on the outbox's thread."""
+        return self.out.put(self._put_rx, (src, dst, data, seq, t_tx, t_rx, dist, msg), "rx")
 
     def status(self, tag: Any, event: str, reason: str | None, t: float, seq: int | None = None) -> bool:
         """Queue a status message (a non-int tag goes as nil); False if lost at the edge."""
@@ -48,8 +51,15 @@ class ModemEndpoint:
         # not urgent (one per frame queued, one per frame sent): only an rx frame, whose delivery time is
         # modelled, is worth a thread wake-up and switch in the middle of the engine's work; a status goes
         # out when the engine is done with what is due (Outbox.put)
-        return self.out.put(self.status_pub.put, wire.encode_status(tag, event, reason, t, seq), "status",
-                            urgent=False)
+        return self.out.put(self._put_status, (tag, event, reason, t, seq), "status", urgent=False)
+
+    def _put_rx(self, fields: tuple[Any, ...]) -> None:
+        """(the outbox's thread)"""
+        self.rx_pub.put(wire.encode_rx(*fields))
+
+    def _put_status(self, fields: tuple[Any, ...]) -> None:
+        """(the outbox's thread)"""
+        self.status_pub.put(wire.encode_status(*fields))
 
     def stats(self) -> dict[str, Any]:
         return self.out.stats()
@@ -74,6 +84,13 @@ class ModemEndpoint:
         self.out.close(timeout)
         for p in (self.rx_pub, self.status_pub):
             _undeclare(p)
+
+
+def put_record(item: tuple[Any, float, Any]) -> None:
+    """(a trace outbox's thread) `(publisher, t9, row)`: the trace record of a row of the output port's batch
+    (trace.events.row_record, its time `t9`), made and encoded here, off the engine, and put."""
+    pub, t9, row = item
+    pub.put(wire.pack(row_record(t9, row)))
 
 
 def _undeclare(e: Any) -> None:

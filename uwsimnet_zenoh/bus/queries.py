@@ -8,6 +8,7 @@ flood of queries costs the other modems' frames one query per round, not the who
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import zenoh
@@ -35,13 +36,8 @@ class Queries:
     warn: Throttle
     _info_lane: Lane
     _control_lane: Lane
-
-    @property
-    def real(self) -> set[str]:
-        raise NotImplementedError
-
-    def _pull_poses(self, t: float) -> None:
-        raise NotImplementedError
+    real: set[str]                                  # (the broker's: modems a real driver serves)
+    _pull_poses: Callable[[float], None]            # (bus/poses.py)
 
     def _on_info_query(self, query: zenoh.Query) -> None:
         self._queue_query(self._info_lane, query, self._answer_info, query)

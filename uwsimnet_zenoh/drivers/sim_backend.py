@@ -13,11 +13,11 @@ With `clock="virtual"` nothing runs by itself: the caller steps time with `world
 network goes through the clock's inbox and every callback runs on the engine thread.
 
 Each received frame is decorated with what a device would measure: the distance between the two
-vehicles when the frame left (from the pose table), the channel's propagation time for it, the
-relative radial velocity, the sender's bitrate.  The world listens to the network's output port
-(trace/tracer.py) once for all its backends: the rx and status events of their modems, and the addressee's
-outcome of each unicast frame a backend sent (its `rx`, or its `drop` at the receiver), which the sender's
-backend reports as `delivered` or `lost`.
+vehicles when the frame left (the one the channel used, carried by the port's rx event), the channel's
+propagation time for it, the relative radial velocity (from the pose table), the sender's bitrate.  The
+world listens to the network's output port (trace/tracer.py) once for all its backends: the rx and status
+events of their modems, and the addressee's outcome of each unicast frame a backend sent (its `rx`, or its
+`drop` at the receiver), which the sender's backend reports as `delivered` or `lost`.
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ class _Output(Listener):
         if be is None:
             return
         if ev == "rx":
-            be._on_rx(frame, t)
+            be._on_rx(frame, t, dist)
         else:
             be._on_status(frame, ev, reason, t)
 
@@ -208,10 +208,13 @@ class SimBackend:
             except Exception:  # noqa: BLE001 - a listener must not break the engine
                 log.exception("%s: status listener raised", self.id)
 
-    def _on_rx(self, frame: Frame, t: float) -> None:
+    def _on_rx(self, frame: Frame, t: float, at: Any) -> None:
         modem = self.modem
         self.counters["received"] += 1
         dist, prop, vel = self.world.link(frame.dev, modem, frame.t_tx)
+        if at is not None and math.isfinite(at):        # the distance the channel itself used (the port's rx)
+            ch = modem.rx_channel
+            dist, prop = float(at), ch.min_prop_s + ch.prop_s_per_m * float(at)
         sender = self.world.net.modems.get(frame.dev)
         data = frame.data if frame.data is not None else bytes(frame.payload)
         bf = BackendFrame(frame.src, frame.dst, data, frame.seq, frame.t_tx, t, frame.size,

@@ -12,7 +12,8 @@ is called once per fact, at once, with the fields as the engine has them and not
 event or the status; a status has no fifo nor distance).  `listen(l)` takes the frame events,
 `listen(l, statuses=True)` the statuses too.  The listeners of a run:
 
-- the online metrics' fold (analysis.fold.Fold; through `Accumulator.follow`);
+- the online metrics' fold (analysis.fold.Fold; through `Accumulator.follow`): each event at once, or the
+  trace writers' batches when there are;
 - the trace writers, renderings of the one record: `Batcher` (below) gathers events into `Batch`es for the
   JSONL writer and the columnar one (`consume`), which write them at `flush()` or every `batch` events;
   `Records` makes the documented dict of each event for a callable (`add`: the user's tracing class, the
@@ -269,11 +270,10 @@ class Tracer:
         if statuses:
             self.watchers.append(listener)
 
-    def unlisten(self, listener: Listener) -> None:
-        """No more events for `listener` (a no-op if it had none)."""
-        for lst in (self.listeners, self.watchers):
-            if listener in lst:
-                lst.remove(listener)
+    @property
+    def batching(self) -> bool:
+        """Does the port make batches (a `consume`r listens)?"""
+        return self._batcher is not None
 
     def add(self, fn: Callable[[Record], None]) -> None:
         """`fn(record)` of every frame event (a `Records` listener)."""
