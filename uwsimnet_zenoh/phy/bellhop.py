@@ -21,6 +21,7 @@ starts a program, and only when the cache has no grid for this content.
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 import os
 import shutil
@@ -37,6 +38,7 @@ import numpy as np
 from .acoustic import _BER_SCALAR, AcousticLink
 from .models import Answer, ChannelModel, ModelContext, Query
 
+log = logging.getLogger("uwsimnet.bellhop")
 GRID_VERSION = "uwsimnet-bellhop-grid-2"
 LATE_S = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1)
 """Delays after the first arrival (s) at which the grid keeps the fraction of arrival energy still to come."""
@@ -224,7 +226,7 @@ def compute_grid(program: str, freq_hz: float, profile: list[tuple[float, float]
                  seabed: tuple[float, float, float], sds: list[float], rds: list[float], rrs_m: list[float],
                  workers: int = 2) -> Grid:
     """The grid from Bellhop: one TL run ('I') and one arrivals run ('A') per source depth, in parallel."""
-    def one(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def one(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         with tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d1, \
                 tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d2:
             shd = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "I"), "shd", d1)
@@ -235,8 +237,18 @@ def compute_grid(program: str, freq_hz: float, profile: list[tuple[float, float]
         first, spread, late = read_arrivals(arr.decode())
         return tl, first[0], spread[0], late[0]
 
+    done = [0]
+
+    def counted(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        out = one(sd)
+        done[0] += 1                              # progress: one line per source depth (logger uwsimnet.bellhop)
+        log.info("bellhop grid: %d/%d source depths (%.1f m done)", done[0], len(sds), sd)
+        return out
+
+    log.info("bellhop grid: %d source depths x %d depths x %d ranges at %.0f Hz", len(sds), len(rds), len(rrs_m),
+             freq_hz)
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
-        parts = list(pool.map(one, sds))
+        parts = list(pool.map(counted, sds))
     return Grid(np.array(sds), np.array(rds), np.array(rrs_m), *(np.stack([p[n] for p in parts]) for n in range(4)))
 
 
