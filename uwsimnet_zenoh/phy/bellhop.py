@@ -39,7 +39,7 @@ from .acoustic import _BER_SCALAR, AcousticLink
 from .models import Answer, ChannelModel, ModelContext, Query
 
 log = logging.getLogger("uwsimnet.bellhop")
-GRID_VERSION = "uwsimnet-bellhop-grid-2"
+GRID_VERSION = "uwsimnet-bellhop-grid-3"
 LATE_S = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1)
 """Delays after the first arrival (s) at which the grid keeps the fraction of arrival energy still to come."""
 HOWTO = ("Bellhop not found: run `make bellhop` (installs the aubellhop wheel's binary into .tools/bellhop),"
@@ -61,12 +61,13 @@ def find_program(explicit: str | None = None) -> str | None:
 
 def env_text(freq_hz: float, profile: list[tuple[float, float]], bottom_m: float, seabed: tuple[float, float, float],
              sds: list[float], rds: list[float], rrs_m: list[float], run: str, beams: int = 0) -> str:
-    """A Bellhop .env: one fluid layer (C-linear profile, vacuum surface) over an acousto-elastic half-space
-    (sound speed m/s, density g/cm^3, attenuation dB/wavelength); sources, receivers and ranges as given."""
+    """A Bellhop .env: one fluid layer (C-linear profile, vacuum surface, Thorp volume attenuation) over an
+    acousto-elastic half-space (sound speed m/s, density g/cm^3, attenuation dB/wavelength); sources,
+    receivers and ranges as given."""
     pts = [(d, c) for d, c in profile if d < bottom_m]
     pts.append((bottom_m, _speed_at(profile, bottom_m)))
     cp, rho, att = seabed
-    lines = ["'uwsimnet'", f"{freq_hz:.6f}", "1", "'CVW'", f"0 0.0 {bottom_m:.6f}"]
+    lines = ["'uwsimnet'", f"{freq_hz:.6f}", "1", "'CVWT'", f"0 0.0 {bottom_m:.6f}"]
     lines += [f"{d:.6f} {c:.6f} /" for d, c in pts]
     lines += ["'A' 0.0", f"{bottom_m:.6f} {cp:.6f} 0.0 {rho:.6f} {att:.6f} /"]
     for vals, scale in ((sds, 1.0), (rds, 1.0), (rrs_m, 1e-3)):
