@@ -149,3 +149,20 @@ def test_plot_draws_the_tl_field_of_the_bellhop_link(tmp_path):
     assert p.returncode == 0, p.stderr
     png = tmp_path / "fig" / "tl-field-down.png"
     assert str(png) in p.stdout.split() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_moving_receiver_gets_the_delay_where_the_sound_reaches_it(monkeypatch):
+    monkeypatch.setenv("UWSIMNET_CACHE", str(DATA))
+    from uwsimnet_zenoh.phy import testing
+
+    model = Network(load_scene(SCENE)).modems["buoy-modem"].error
+    h = testing.Harness(model)
+    still = h.answer([(1000.0, 0.0, -100.0)], tx=(0.0, 0.0, -10.0))
+    v = (4.0, 0.0, 0.0)
+    moving = h.answer([(1000.0, 0.0, -100.0)], tx=(0.0, 0.0, -10.0), rx_velocities=[v])
+    d = moving.delay[0]
+    at = h.answer([(1000.0 + 4.0 * d, 0.0, -100.0)], tx=(0.0, 0.0, -10.0))      # still, where it arrived
+    assert abs(d - at.delay[0]) < 1e-9 and d > still.delay[0]
+    c = model.profile.mean_speed(10.0, 100.0)
+    u = (1000.0 + 4.0 * d) / math.hypot(1000.0 + 4.0 * d, 90.0)
+    assert abs(moving.doppler[0] - (c - 4.0 * u) / c) < 1e-12 and still.doppler[0] == 1.0

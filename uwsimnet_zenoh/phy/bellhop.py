@@ -9,7 +9,9 @@ interpolation in (source depth, receiver depth, range); then, with the device's 
 BER by the modulation, PER = 1 - (1 - BER)^(8 L).  Delay spread as a loss (`<isi>off</isi>` to leave it out):
 the fraction f of the arrivals' energy that comes more than one bit after the first arrival is interference,
 SINR = (1 - f) SNR / (1 + f SNR), and Eb/N0 = SINR B/R (less the implementation loss).  The arrival is the
-delay.  A receiver with no arrival, or beyond the grid, loses the frame.  The environment is range-independent
+delay, taken where a moving receiver is when the sound reaches it (the grid's delay field solved for the
+receiver's constant velocity); the Doppler factor as the `ocean` model's, with the profile's mean speed.
+A receiver with no arrival, or beyond the grid, loses the frame.  The environment is range-independent
 here: the depth below the origin.
 The grid's source depths are `sources` (or every `sourceStep` m); a sender far from all of them whose receiver
 is nearer one swaps the two ends (reciprocity: the same TL and travel time both ways).
@@ -37,6 +39,7 @@ import numpy as np
 
 from .acoustic import _BER_SCALAR, AcousticLink
 from .models import Answer, ChannelModel, ModelContext, Query
+from .ocean import doppler_factor
 
 log = logging.getLogger("uwsimnet.bellhop")
 GRID_VERSION = "uwsimnet-bellhop-grid-3"
@@ -278,6 +281,7 @@ class BellhopModel(ChannelModel):
         self.isi = params.get("isi", "on") != "off"
         self.ber = _BER_SCALAR[m.modulation]         # BER of linear Eb/N0, on floats
         bottom = float(env.seafloor().depth(0.0, 0.0))
+        self.profile = env.sound_speed()
         max_range = float(params.get("maxRange", "5000"))
         r_step = float(params.get("rangeStep", "25"))
         z_step = float(params.get("depthStep", "2"))
@@ -333,19 +337,35 @@ class BellhopModel(ChannelModel):
             out.append((1 - f) * lo + f * hi)
         return out[0], out[1], out[2]
 
+    def _at(self, tx: Any, p: Any, zs0: float, off_s: float) -> tuple[float, float, float]:
+        """TL, delay, late fraction from the sender `tx` to a receiver at position p."""
+        zs, zr = zs0, -p[2]
+        if off_s > min(abs(zr - s) for s in self._axes[0]):    # reciprocity: a sender off the grid's source
+            zs, zr = zr, zs                                     # depths, to a receiver on one, swaps the ends
+        return self._point(zs, zr, math.hypot(p[0] - tx.position[0], p[1] - tx.position[1]))
+
     def answer(self, q: Query) -> Answer:
         tx = q.sender
         zs0 = -tx.position[2]
-        sd = self._axes[0]
-        off_s = min(abs(zs0 - s) for s in sd)
+        off_s = min(abs(zs0 - s) for s in self._axes[0])
         per: list[float] = []
         delays: list[float] = []
         levels: list[float] = []
+        dopplers: list[float] = []
         for rx in q.receivers:
-            zs, zr = zs0, -rx.position[2]
-            if off_s > min(abs(zr - s) for s in sd):    # reciprocity: a sender off the grid's source depths,
-                zs, zr = zr, zs                          # to a receiver on one, swaps the ends
-            t, d, f = self._point(zs, zr, math.hypot(rx.position[0] - tx.position[0], rx.position[1] - tx.position[1]))
+            t, d, f = self._at(tx, rx.position, zs0, off_s)
+            moving = rx.velocity != (0.0, 0.0, 0.0)
+            at = rx.position
+            if moving and math.isfinite(d):           # motion during flight: the arrival where the receiver
+                for _ in range(3):                    # is then (fixed point; contraction |v| / c ~ 1e-3)
+                    at = tuple(p + v * d for p, v in zip(rx.position, rx.velocity, strict=True))
+                    t, d2, f = self._at(tx, at, zs0, off_s)
+                    if not math.isfinite(d2) or abs(d2 - d) < 1e-12:
+                        d = d2
+                        break
+                    d = d2
+            c = self.profile.mean_speed(max(0.0, zs0), max(0.0, -at[2]))
+            dopplers.append(doppler_factor(tx.position, at, tx.velocity, rx.velocity, c))
             delays.append(d)
             levels.append(self.link.sl_db - t)
             if not math.isfinite(t) or not math.isfinite(d):
@@ -356,7 +376,7 @@ class BellhopModel(ChannelModel):
             ebn0 = (1.0 - f) * snr / (1.0 + f * snr) * self.to_ebn0     # ISI: energy a bit late is interference
             b = self.ber(ebn0)
             per.append(1.0 if b >= 1.0 else -math.expm1(8.0 * q.size * math.log1p(-b)))
-        return Answer(per, delays, levels)
+        return Answer(per, delays, levels, dopplers)
 
 
 def _locate(ax: list[float], q: float) -> tuple[int, int, float]:
