@@ -252,3 +252,13 @@ def test_scene_files_name_the_ocean_model(tmp_path):
                        text=True, timeout=120)
     # a vehicle without devices builds no model: validate is fine; the parameter is checked when one transmits
     assert r.returncode == 0, r.stderr
+
+
+def test_doppler_tolerance_loses_the_frames_of_a_fast_closing_pair():
+    h = testing.Harness("ocean", {"dopplerTolerance": "3"})
+    slow = h.answer([(2000.0, 0.0, 0.0)], tx_velocity=(1.0, 0.0, 0.0), rx_velocities=[(-1.5, 0.0, 0.0)])
+    fast = h.answer([(2000.0, 0.0, 0.0)], tx_velocity=(2.0, 0.0, 0.0), rx_velocities=[(-1.5, 3.0, 0.0)])
+    across = h.answer([(2000.0, 0.0, 0.0)], tx_velocity=(0.0, 4.0, 0.0))     # 4 m/s across the path: no Doppler
+    assert slow.per[0] == 0.0 and fast.per[0] == 1.0 and across.per[0] == 0.0
+    with pytest.raises(ValueError, match="dopplerTolerance"):
+        testing.Harness("ocean", {"dopplerTolerance": "0"})

@@ -21,21 +21,24 @@ starts a program, and only when the cache has no grid for this content.
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 import os
 import shutil
 import struct
 import subprocess
 import tempfile
+from bisect import bisect_right
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .acoustic import MODULATIONS, AcousticLink
+from .acoustic import _BER_SCALAR, AcousticLink
 from .models import Answer, ChannelModel, ModelContext, Query
 
+log = logging.getLogger("uwsimnet.bellhop")
 GRID_VERSION = "uwsimnet-bellhop-grid-2"
 LATE_S = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1)
 """Delays after the first arrival (s) at which the grid keeps the fraction of arrival energy still to come."""
@@ -223,7 +226,7 @@ def compute_grid(program: str, freq_hz: float, profile: list[tuple[float, float]
                  seabed: tuple[float, float, float], sds: list[float], rds: list[float], rrs_m: list[float],
                  workers: int = 2) -> Grid:
     """The grid from Bellhop: one TL run ('I') and one arrivals run ('A') per source depth, in parallel."""
-    def one(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def one(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         with tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d1, \
                 tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d2:
             shd = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "I"), "shd", d1)
@@ -234,8 +237,18 @@ def compute_grid(program: str, freq_hz: float, profile: list[tuple[float, float]
         first, spread, late = read_arrivals(arr.decode())
         return tl, first[0], spread[0], late[0]
 
+    done = [0]
+
+    def counted(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        out = one(sd)
+        done[0] += 1                              # progress: one line per source depth (logger uwsimnet.bellhop)
+        log.info("bellhop grid: %d/%d source depths (%.1f m done)", done[0], len(sds), sd)
+        return out
+
+    log.info("bellhop grid: %d source depths x %d depths x %d ranges at %.0f Hz", len(sds), len(rds), len(rrs_m),
+             freq_hz)
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
-        parts = list(pool.map(one, sds))
+        parts = list(pool.map(counted, sds))
     return Grid(np.array(sds), np.array(rds), np.array(rrs_m), *(np.stack([p[n] for p in parts]) for n in range(4)))
 
 
@@ -262,7 +275,7 @@ class BellhopModel(ChannelModel):
         self.to_ebn0 = 10 ** (0.1 * (self.link.bw_gain_db - m.implementation_loss_db))   # B/R / impl. loss
         self.bit_s = 1.0 / float(m.bitrate_bps)
         self.isi = params.get("isi", "on") != "off"
-        self.ber = MODULATIONS[m.modulation]
+        self.ber = _BER_SCALAR[m.modulation]         # BER of linear Eb/N0, on floats
         bottom = float(env.seafloor().depth(0.0, 0.0))
         max_range = float(params.get("maxRange", "5000"))
         r_step = float(params.get("rangeStep", "25"))
@@ -284,6 +297,7 @@ class BellhopModel(ChannelModel):
         self.path = where / f"{key.hexdigest()[:32]}.npz"
         if self.path.exists():
             self.grid = Grid.load(self.path)
+            self._tables()
             return
         program = find_program(params.get("program"))
         if program is None:
@@ -292,27 +306,64 @@ class BellhopModel(ChannelModel):
                                  workers=int(params.get("workers", str(os.cpu_count() or 1))))
         where.mkdir(parents=True, exist_ok=True)
         self.grid.save(self.path)
+        self._tables()
+
+    def _tables(self) -> None:
+        """The grid as Python lists for the per-frame path (a few receivers: math beats numpy's call cost)."""
+        g = self.grid
+        late = g.late_fraction(np.repeat(g.sd, len(g.rd) * len(g.rr)), np.tile(np.repeat(g.rd, len(g.rr)), len(g.sd)),
+                               np.tile(g.rr, len(g.sd) * len(g.rd)), self.bit_s).reshape(g.tl.shape)
+        self._axes = (g.sd.tolist(), g.rd.tolist(), g.rr.tolist())
+        self._tl, self._dl = g.tl.tolist(), g.delay.tolist()
+        self._late = late.tolist() if self.isi else np.zeros_like(late).tolist()
+
+    def _point(self, zs: float, zr: float, r: float) -> tuple[float, float, float]:
+        """TL, delay and late fraction at one geometry (trilinear, depths held at the grid's ends; nan beyond
+        its ranges): the same arithmetic as `Grid.lookup`, on lists."""
+        sd, rd, rr = self._axes
+        if r < rr[0] or r > rr[-1]:
+            return math.nan, math.nan, 0.0
+        (i, i1, f), (j, j1, g), (k, k1, h) = _locate(sd, zs), _locate(rd, zr), _locate(rr, r)
+        out = []
+        for v in (self._tl, self._dl, self._late):
+            a, b = v[i], v[i1]
+            lo = (1 - g) * ((1 - h) * a[j][k] + h * a[j][k1]) + g * ((1 - h) * a[j1][k] + h * a[j1][k1])
+            hi = (1 - g) * ((1 - h) * b[j][k] + h * b[j][k1]) + g * ((1 - h) * b[j1][k] + h * b[j1][k1])
+            out.append((1 - f) * lo + f * hi)
+        return out[0], out[1], out[2]
 
     def answer(self, q: Query) -> Answer:
         tx = q.sender
-        rxs = q.receivers
-        zs = np.full(len(rxs), -tx.position[2])
-        zr = np.array([-r.position[2] for r in rxs])
-        rr = np.array([math.hypot(r.position[0] - tx.position[0], r.position[1] - tx.position[1]) for r in rxs])
-        sd = self.grid.sd                       # reciprocity: a sender off the grid's source depths, to a
-        off = np.minimum(np.abs(zs[:, None] - sd).min(axis=1), 1e9)    # receiver on one, swaps the ends
-        swap = off > np.abs(zr[:, None] - sd).min(axis=1)
-        zs, zr = np.where(swap, zr, zs), np.where(swap, zs, zr)
-        tl, delay = self.grid.lookup(zs, zr, rr)
-        late = self.grid.late_fraction(zs, zr, rr, self.bit_s) if self.isi else np.zeros(len(tl))
-        per = []
-        for t, f in zip(tl, late, strict=True):
-            if not math.isfinite(t):
+        zs0 = -tx.position[2]
+        sd = self._axes[0]
+        off_s = min(abs(zs0 - s) for s in sd)
+        per: list[float] = []
+        delays: list[float] = []
+        levels: list[float] = []
+        for rx in q.receivers:
+            zs, zr = zs0, -rx.position[2]
+            if off_s > min(abs(zr - s) for s in sd):    # reciprocity: a sender off the grid's source depths,
+                zs, zr = zr, zs                          # to a receiver on one, swaps the ends
+            t, d, f = self._point(zs, zr, math.hypot(rx.position[0] - tx.position[0], rx.position[1] - tx.position[1]))
+            delays.append(d)
+            levels.append(self.link.sl_db - t)
+            if not math.isfinite(t) or not math.isfinite(d):
                 per.append(1.0)
                 continue
-            snr = 10.0 ** (0.1 * min(self.snr_const - float(t), 3000.0))
-            f = min(max(float(f), 0.0), 1.0)
+            snr = 10.0 ** (0.1 * min(self.snr_const - t, 3000.0))
+            f = min(max(f, 0.0), 1.0)
             ebn0 = (1.0 - f) * snr / (1.0 + f * snr) * self.to_ebn0     # ISI: energy a bit late is interference
-            b = float(self.ber(ebn0))
+            b = self.ber(ebn0)
             per.append(1.0 if b >= 1.0 else -math.expm1(8.0 * q.size * math.log1p(-b)))
-        return Answer(per, [float(d) for d in delay], [float(self.link.sl_db - t) for t in tl])
+        return Answer(per, delays, levels)
+
+
+def _locate(ax: list[float], q: float) -> tuple[int, int, float]:
+    """Cell (i, i + 1) and weight of q on an increasing axis, q held at its ends."""
+    n = len(ax)
+    if n == 1 or q <= ax[0]:
+        return 0, min(1, n - 1), 0.0
+    if q >= ax[-1]:
+        return n - 2, n - 1, 1.0
+    i = bisect_right(ax, q) - 1
+    return i, i + 1, (q - ax[i]) / (ax[i + 1] - ax[i])

@@ -9,6 +9,8 @@ Per receiver, at the transmission's first bit t0 (sender at p_s with velocity v_
     delay  minPropTime + tau
     PER    the device's built-in model at the path length c tau
     D      (c - v_r.u) / (c - v_s.u), u from p_s to the receiver at arrival (phy.ocean.doppler_factor)
+    lost   if `dopplerTolerance` (m/s) is given and the radial speed |v_s.u - v_r.u| exceeds it (a modem
+           that cannot track that much Doppler: the frame is lost, reason prop)
 Refraction, multipath and shadow zones are not modelled here (Bellhop's work, docs/ocean.md).
 """
 
@@ -36,6 +38,10 @@ class OceanModel(ChannelModel):
             raise ValueError("needs a sound speed: an <environment> or a propTimeIncPerMeter > 0")
         self.c = 1.0 / per_m if per_m > 0 else math.nan
         self.reports_power = bool(self.base.reports_power)
+        tol = params.get("dopplerTolerance")
+        self.tolerance = math.inf if tol is None else float(tol)
+        if not self.tolerance > 0:
+            raise ValueError(f"dopplerTolerance must be > 0 m/s, got {tol}")
 
     def speed(self, z_tx: float, z_rx: float) -> float:
         """The path's sound speed, m/s, between two heights z (m, up; depth = -z)."""
@@ -57,7 +63,18 @@ class OceanModel(ChannelModel):
             dopplers.append(doppler_factor(tx.position, at, tx.velocity, rx.velocity, c))
         base = self.base
         per = base.losses(paths, q.size) if base.by_distance else base.answer(q).per
+        if self.tolerance < math.inf:
+            per = [1.0 if self._radial(tx, rx, d) > self.tolerance else float(p)
+                   for p, rx, d in zip(per, q.receivers, delays, strict=True)]
         return Answer(per, delays, None, dopplers)
+
+    def _radial(self, tx: Any, rx: Any, delay: float) -> float:
+        """|v_s.u - v_r.u|, m/s: the closing (or opening) speed along the path."""
+        tau = delay - self.min_prop_s
+        at = [p + v * tau for p, v in zip(rx.position, rx.velocity, strict=True)]
+        d = [a - b for a, b in zip(at, tx.position, strict=True)]
+        n = math.sqrt(sum(x * x for x in d)) or 1.0
+        return abs(sum((vs - vr) * x / n for vs, vr, x in zip(tx.velocity, rx.velocity, d, strict=True)))
 
     # a SINR channel: the base model's powers (at the straight distance at the first bit)
     def received_power(self, distance_m: Any) -> Any:
