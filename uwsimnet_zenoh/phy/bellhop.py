@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from .acoustic import _BER_SCALAR, AcousticLink
+from .acoustic import _BER_SCALAR, MODULATIONS, AcousticLink
 from .models import Answer, ChannelModel, ModelContext, Query
 
 log = logging.getLogger("uwsimnet.bellhop")
@@ -316,6 +316,7 @@ class BellhopModel(ChannelModel):
         self._axes = (g.sd.tolist(), g.rd.tolist(), g.rr.tolist())
         self._tl, self._dl = g.tl.tolist(), g.delay.tolist()
         self._late = late.tolist() if self.isi else np.zeros_like(late).tolist()
+        self._stack = np.stack([g.tl, g.delay, late if self.isi else np.zeros_like(late)], axis=-1)
 
     def _point(self, zs: float, zr: float, r: float) -> tuple[float, float, float]:
         """TL, delay and late fraction at one geometry (trilinear, depths held at the grid's ends; nan beyond
@@ -333,6 +334,8 @@ class BellhopModel(ChannelModel):
         return out[0], out[1], out[2]
 
     def answer(self, q: Query) -> Answer:
+        if len(q.slots) > MANY:
+            return self._answer_many(q)
         tx = q.sender
         zs0 = -tx.position[2]
         sd = self._axes[0]
@@ -356,6 +359,48 @@ class BellhopModel(ChannelModel):
             b = self.ber(ebn0)
             per.append(1.0 if b >= 1.0 else -math.expm1(8.0 * q.size * math.log1p(-b)))
         return Answer(per, delays, levels)
+
+    def _answer_many(self, q: Query) -> Answer:
+        """`answer` for many receivers: the same arithmetic on numpy arrays, one trilinear gather of the
+        stacked (TL, delay, late fraction) table (numpy's call cost is paid once per frame, not per receiver)."""
+        tx = q.sender.position
+        p = np.array([r.position for r in q.receivers], dtype=float)
+        sd = self.grid.sd
+        zs = np.full(len(p), -tx[2])
+        zr = -p[:, 2]
+        r = np.hypot(p[:, 0] - tx[0], p[:, 1] - tx[1])
+        swap = np.abs(zs[0] - sd).min() > np.abs(zr[:, None] - sd).min(axis=1)     # reciprocity, as `answer`
+        zs, zr = np.where(swap, zr, zs), np.where(swap, zs, zr)
+        v = _trilinear_stack(self.grid.sd, self.grid.rd, self.grid.rr, self._stack, zs, zr, r)
+        beyond = (r < self.grid.rr[0]) | (r > self.grid.rr[-1])
+        v[beyond] = (math.nan, math.nan, 0.0)
+        tl, delay, f = v[:, 0], v[:, 1], np.clip(v[:, 2], 0.0, 1.0)
+        ok = np.isfinite(tl) & np.isfinite(delay)
+        with np.errstate(invalid="ignore", over="ignore"):
+            snr = 10.0 ** (0.1 * np.minimum(self.snr_const - np.where(ok, tl, 0.0), 3000.0))
+            ebn0 = (1.0 - f) * snr / (1.0 + f * snr) * self.to_ebn0     # ISI: energy a bit late is interference
+            b = np.minimum(np.asarray(MODULATIONS[self.link.modem.modulation](ebn0), dtype=float), 1.0)
+            per = np.where(ok & (b < 1.0), -np.expm1(8.0 * q.size * np.log1p(-np.where(b < 1.0, b, 0.0))), 1.0)
+        return Answer(per.tolist(), delay.tolist(), (self.link.sl_db - tl).tolist())
+
+
+MANY = 24
+"""Receivers above which `answer` goes to numpy (bench/bench_bellhop.py: below it, Python floats are faster)."""
+
+
+def _trilinear_stack(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarray, q0: np.ndarray,
+                     q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """`_trilinear` of every last-axis column of v at once: (n, v.shape[-1])."""
+    (i, f), (j, g), (k, h) = _axis(a0, q0), _axis(a1, q1), _axis(a2, q2)
+    i1 = np.minimum(i + 1, len(a0) - 1)
+    j1 = np.minimum(j + 1, len(a1) - 1)
+    k1 = np.minimum(k + 1, len(a2) - 1)
+    out = np.zeros((len(q0), v.shape[-1]))
+    for ii, wi in ((i, 1 - f), (i1, f)):
+        for jj, wj in ((j, 1 - g), (j1, g)):
+            for kk, wk in ((k, 1 - h), (k1, h)):
+                out += (wi * wj * wk)[:, None] * v[ii, jj, kk]
+    return out
 
 
 def _locate(ax: list[float], q: float) -> tuple[int, int, float]:

@@ -1,0 +1,53 @@
+"""The per-frame query of the channel model "bellhop" on many receivers (numpy, one gather per frame) gives
+what the per-receiver path gives, receiver by receiver, on the grid Bellhop made (tests/data/bellhop/): the
+same interpolation, reciprocity swap, ISI term, BER and PER, beyond-the-grid losses included."""
+
+from __future__ import annotations
+
+import math
+import random
+from pathlib import Path
+
+import pytest
+
+from uwsimnet_zenoh.engine.network import Network
+from uwsimnet_zenoh.kernel.frame import Frame
+from uwsimnet_zenoh.mobility.trajectory import PoseTable
+from uwsimnet_zenoh.phy import bellhop
+from uwsimnet_zenoh.phy.models import Query
+from uwsimnet_zenoh.scene import load_scene
+
+DATA = Path(__file__).resolve().parent / "data"
+
+
+def _query(tx: tuple[float, float, float], rxs: list[tuple[float, float, float]], size: int = 32) -> Query:
+    poses = PoseTable(["tx"] + [f"rx{i}" for i in range(len(rxs))])
+    poses.set_static("tx", tx)
+    for i, p in enumerate(rxs):
+        poses.set_static(f"rx{i}", p)
+    return Query(0.0, Frame(1, 2, 0, size, size), [math.dist(tx, p) for p in rxs], list(range(len(rxs))), poses,
+                 0, list(range(1, len(rxs) + 1)))
+
+
+@pytest.mark.parametrize("tx_depth", [10.0, 60.0])          # on the grid's source depth, and off it (swap)
+def test_many_receivers_at_once_answer_as_one_at_a_time(monkeypatch, tx_depth):
+    monkeypatch.setenv("UWSIMNET_CACHE", str(DATA))
+    monkeypatch.setenv("UWSIMNET_BELLHOP", "/nonexistent/bellhop")
+    model = Network(load_scene(DATA / "ocean-shadow.xml")).modems["buoy-modem"].error
+    rnd = random.Random(37)
+    tx = (0.0, 0.0, -tx_depth)
+    rxs = []
+    for _ in range(256):
+        r, a = rnd.uniform(0.0, 2200.0), rnd.uniform(0.0, 2 * math.pi)    # some beyond the grid's 2000 m
+        rxs.append((r * math.cos(a), r * math.sin(a), -rnd.choice([rnd.uniform(0.0, 210.0), 10.0])))
+    many = model.answer(_query(tx, rxs))
+    assert len(rxs) > bellhop.MANY and len(many.per) == 256
+    lost = delivered = 0
+    for i, p in enumerate(rxs):
+        one = model.answer(_query(tx, [p]))
+        for got, want in ((many.per[i], one.per[0]), (many.delay[i], one.delay[0]),
+                          (many.level_db[i], one.level_db[0])):
+            assert (math.isnan(got) and math.isnan(want)) or got == pytest.approx(want, rel=1e-9, abs=1e-12), i
+        lost += one.per[0] == 1.0
+        delivered += one.per[0] < 0.5
+    assert lost > 10 and delivered > 10                    # both outcomes are exercised
