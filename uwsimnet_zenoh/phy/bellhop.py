@@ -1,6 +1,7 @@
 """The channel model "bellhop" (docs/ocean.md): ray-traced transmission loss and first arrivals from Bellhop
 (Porter's Acoustics Toolbox; GPL-3, so it is run as a program and never imported or shipped), computed once on
-a grid per (environment, frequency, source depths), cached on disk by content hash, interpolated per frame.
+a grid per (environment, frequency, source depths), cached on disk by content hash and Bellhop build
+(`program_tag`), interpolated per frame.
 
 Per receiver: horizontal range r and the two depths -> TL (incoherent, Bellhop run type 'I') and the first
 significant arrival (run type 'A': the earliest arrival within 20 dB of the strongest) by trilinear
@@ -30,6 +31,7 @@ import subprocess
 import tempfile
 from bisect import bisect_right
 from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +59,22 @@ def find_program(explicit: str | None = None) -> str | None:
     root = Path(__file__).resolve().parents[2] / ".tools" / "bellhop"
     found = sorted(root.glob("lib/python3*/site-packages/aubellhop/bin/bellhop.exe"))
     return str(found[0]) if found else None
+
+
+def program_tag(program: str) -> str:
+    """The Bellhop build in a grid's cache name: the first 12 hex digits of the SHA-256 of the program's bytes
+    (a new Bellhop, even of the same version number, computes its own grids); kept per (path, size, mtime)."""
+    st = os.stat(program)
+    return _tag(os.path.realpath(program), st.st_size, st.st_mtime_ns)
+
+
+@lru_cache(maxsize=8)
+def _tag(path: str, _size: int, _mtime_ns: int) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            h.update(chunk)
+    return h.hexdigest()[:12]
 
 
 def env_text(freq_hz: float, profile: list[tuple[float, float]], bottom_m: float, seabed: tuple[float, float, float],
@@ -294,12 +312,14 @@ class BellhopModel(ChannelModel):
         seabed = (env.seabed_speed_mps, env.seabed_density, env.seabed_attenuation)
         key = hashlib.sha256(repr((GRID_VERSION, self.freq_hz, profile, bottom, seabed, sds, rds, rrs)).encode())
         where = Path(params.get("cache", "") or cache_dir())
-        self.path = where / f"{key.hexdigest()[:32]}.npz"
+        program = find_program(params.get("program"))       # the cache name is <content>-<program_tag>.npz;
+        stem = key.hexdigest()[:32]                          # without the program, any Bellhop's grid serves
+        found = sorted(where.glob(f"{stem}-*.npz")) if program is None else []
+        self.path = found[-1] if found else where / f"{stem}-{program_tag(program) if program else 'none'}.npz"
         if self.path.exists():
             self.grid = Grid.load(self.path)
             self._tables()
             return
-        program = find_program(params.get("program"))
         if program is None:
             raise ValueError(HOWTO)
         self.grid = compute_grid(program, self.freq_hz, profile, bottom, seabed, sds, rds, rrs,
