@@ -5,7 +5,9 @@ TL and first arrival at 20 random geometries, the cached grid against a direct B
 
 from __future__ import annotations
 
+import json
 import math
+import os
 import random
 import subprocess
 import sys
@@ -120,3 +122,15 @@ def test_a_missing_grid_is_computed_and_cached(tmp_path, monkeypatch):
     assert path.exists() and path.parent == tmp_path / "bellhop"
     again = Network(load_scene_text(text, str(SCENE)))          # from the cache: the same grid
     assert (again.modems["auv-modem"].error.grid.tl == net.modems["buoy-modem"].error.grid.tl).all()
+
+
+def test_uwsimnet_run_writes_the_shadow_in_its_trace(tmp_path):
+    env = {**os.environ, "UWSIMNET_CACHE": str(DATA), "UWSIMNET_BELLHOP": "/nonexistent/bellhop"}
+    trace = tmp_path / "shadow.jsonl"
+    p = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(SCENE), "--trace", str(trace)],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert p.returncode == 0, p.stderr
+    rec = [json.loads(line) for line in trace.read_text().splitlines()]
+    got = outcomes([r for r in rec if "ev" in r and "seq" in r])
+    assert [o for t, o in sorted(got.items()) if t < 60] == ["prop"] * 30
+    assert [o for t, o in sorted(got.items()) if t > 90] == ["rx"] * 54

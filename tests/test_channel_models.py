@@ -132,3 +132,24 @@ def test_without_the_package_the_name_is_unknown(tmp_path):
 def test_the_harness_block_runs_as_it_stands():
     block = next(b for b in blocks("python") if "testing.Harness" in b)
     exec(compile(block, "docs/channel-models.md", "exec"), {})  # noqa: S102 - our own documentation
+
+
+def test_the_plugin_through_the_harness(installed):
+    """The plug-in author's own test: the contract, and the delivery the harness draws against the theory."""
+    import importlib.util
+    import sys as _sys
+
+    site = installed["PYTHONPATH"].split(os.pathsep)[0]
+    spec = importlib.util.spec_from_file_location("rician_fading", os.path.join(site, "rician_fading.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    _sys.modules.pop("rician_fading", None)
+    from uwsimnet_zenoh.phy import testing
+
+    h = testing.Harness(mod.RicianFading, {"K": "4", "snr1km": "9"}, seed=11)
+    assert h.check() == []
+    got = h.delivery((1000.0, 0.0, 0.0), frames=3000, size=32)
+    p = expected_delivery(4.0, 9.0, 32)
+    assert abs(got - p) < 4 * math.sqrt(p * (1 - p) / 3000), (got, p)
+    with pytest.raises(ValueError, match="K must be >= 0"):
+        testing.Harness(mod.RicianFading, {"K": "-2"})
