@@ -38,6 +38,8 @@ def test_without_bellhop_a_grid_of_any_build_serves(tmp_path, monkeypatch):
     other = tmp_path / "bellhop" / f"{STEM}-000000000000.npz"
     shutil.copy(SHIPPED, other)
     assert _model().path == other
+    other.rename(tmp_path / "bellhop" / f"{STEM}.npz")          # a grid cached before the tags
+    assert _model().path == tmp_path / "bellhop" / f"{STEM}.npz"
 
 
 @pytest.mark.skipif(bellhop.find_program() is None, reason="Bellhop is not installed (`make bellhop`)")

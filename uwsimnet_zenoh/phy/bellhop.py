@@ -314,7 +314,7 @@ class BellhopModel(ChannelModel):
         where = Path(params.get("cache", "") or cache_dir())
         program = find_program(params.get("program"))       # the cache name is <content>-<program_tag>.npz;
         stem = key.hexdigest()[:32]                          # without the program, any Bellhop's grid serves
-        found = sorted(where.glob(f"{stem}-*.npz")) if program is None else []
+        found = sorted(where.glob(f"{stem}*.npz")) if program is None else []     # (untagged: before tags)
         self.path = found[-1] if found else where / f"{stem}-{program_tag(program) if program else 'none'}.npz"
         if self.path.exists():
             self.grid = Grid.load(self.path)
