@@ -41,7 +41,7 @@ shd, arr = sys.argv[1], sys.argv[2]
 p = read_shd(shd)
 a = read_arrivals(arr)
 print(json.dumps({"re": np.real(p.values).tolist(), "im": np.imag(p.values).tolist(),
-                  "rd": [float(x) for x in p.index],
+                  "rd": [float(x) for x in p.index], "rr": [float(x) for x in p.columns],
                   "arr": [[int(r.receiver_depth_ndx), int(r.receiver_range_ndx), float(abs(r.arrival_amplitude)),
                            float(r.time_of_arrival)] for r in a.itertuples()]}))
 """
@@ -71,7 +71,7 @@ def test_the_readers_agree_with_the_bellhop_distributions_own_readers(tmp_path):
     ref = json.loads(out.stdout)
     sd, rd, rr, p = bellhop.read_shd(shd)
     assert sd.tolist() == [10.0] and rd.tolist() == ref["rd"] == rds
-    assert rr.tolist() == rrs                         # the ranges asked for, in m (the .env has them in km)
+    assert rr.tolist() == ref["rr"] == rrs            # the ranges asked for, in m (the .env has them in km)
     assert np.array_equal(p[0], np.array(ref["re"]) + 1j * np.array(ref["im"]))    # bit for bit (float32)
     first, spread, _ = bellhop.read_arrivals(arr)
     n_cells = 0
