@@ -86,7 +86,8 @@ PROGRAM = bellhop.find_program()
 
 
 @pytest.mark.skipif(PROGRAM is None, reason="Bellhop is not installed (`make bellhop`)")
-def test_cached_grid_against_a_direct_bellhop_run_at_20_random_geometries():
+def test_cached_grid_against_a_direct_bellhop_run_at_20_random_geometries(monkeypatch):
+    monkeypatch.setenv("UWSIMNET_CACHE", str(DATA))
     grid = bellhop.Grid.load(next((DATA / "bellhop").glob("*.npz")))
     scene = load_scene(SCENE)
     env = scene.environment
@@ -94,21 +95,23 @@ def test_cached_grid_against_a_direct_bellhop_run_at_20_random_geometries():
     assert env is not None and list(env.profile) == list(zip(prof.depths, prof.speeds, strict=True))
     seabed = (env.seabed_speed_mps, env.seabed_density, env.seabed_attenuation)
     profile = [tuple(p) for p in env.profile]
+    freq = Network(scene).modems["buoy-modem"].error.freq_hz      # the device's carrier: the grid's frequency
     rnd = random.Random(37)
     worst_tl = worst_dt = 0.0
     for _ in range(20):
         zr, r = rnd.uniform(1.0, 199.0), rnd.uniform(30.0, 1990.0)
         with tempfile.TemporaryDirectory() as d:
-            shd = bellhop.run_bellhop(PROGRAM, bellhop.env_text(25_000.0, profile, env.depth_m, seabed, [10.0], [zr],
+            shd = bellhop.run_bellhop(PROGRAM, bellhop.env_text(freq, profile, env.depth_m, seabed, [10.0], [zr],
                                                                 [r], "I"), "shd", d)
         with tempfile.TemporaryDirectory() as d:
-            arr = bellhop.run_bellhop(PROGRAM, bellhop.env_text(25_000.0, profile, env.depth_m, seabed, [10.0], [zr],
+            arr = bellhop.run_bellhop(PROGRAM, bellhop.env_text(freq, profile, env.depth_m, seabed, [10.0], [zr],
                                                                 [r], "A"), "arr", d)
         _, _, _, p = bellhop.read_shd(shd)
         first, _, _ = bellhop.read_arrivals(arr.decode())
         tl, dl = grid.lookup([10.0], [zr], [r])
         worst_tl = max(worst_tl, abs(tl[0] + 20 * math.log10(abs(p[0, 0, 0]))))
         worst_dt = max(worst_dt, abs(dl[0] - first[0, 0, 0]))
+    print(f"worst TL error {worst_tl:.3f} dB, worst first-arrival error {worst_dt * 1e3:.4f} ms")
     assert worst_tl < 1.0 and worst_dt < 0.5e-3, (worst_tl, worst_dt)
 
 
@@ -134,3 +137,33 @@ def test_uwsimnet_run_writes_the_shadow_in_its_trace(tmp_path):
     got = outcomes([r for r in rec if "ev" in r and "seq" in r])
     assert [o for t, o in sorted(got.items()) if t < 60] == ["prop"] * 30
     assert [o for t, o in sorted(got.items()) if t > 90] == ["rx"] * 54
+
+
+def test_plot_draws_the_tl_field_of_the_bellhop_link(tmp_path):
+    env = {**os.environ, "UWSIMNET_CACHE": str(DATA), "UWSIMNET_BELLHOP": "/nonexistent/bellhop"}
+    trace = tmp_path / "shadow.jsonl"
+    cli = [sys.executable, "-m", "uwsimnet_zenoh.cli"]
+    assert subprocess.run([*cli, "run", str(SCENE), "--trace", str(trace)], env=env, capture_output=True,
+                          timeout=300).returncode == 0
+    p = subprocess.run([*cli, "plot", str(trace), "-o", str(tmp_path / "fig"), "--scene", str(SCENE)], env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    png = tmp_path / "fig" / "tl-field-down.png"
+    assert str(png) in p.stdout.split() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_moving_receiver_gets_the_delay_where_the_sound_reaches_it(monkeypatch):
+    monkeypatch.setenv("UWSIMNET_CACHE", str(DATA))
+    from uwsimnet_zenoh.phy import testing
+
+    model = Network(load_scene(SCENE)).modems["buoy-modem"].error
+    h = testing.Harness(model)
+    still = h.answer([(1000.0, 0.0, -100.0)], tx=(0.0, 0.0, -10.0))
+    v = (4.0, 0.0, 0.0)
+    moving = h.answer([(1000.0, 0.0, -100.0)], tx=(0.0, 0.0, -10.0), rx_velocities=[v])
+    d = moving.delay[0]
+    at = h.answer([(1000.0 + 4.0 * d, 0.0, -100.0)], tx=(0.0, 0.0, -10.0))      # still, where it arrived
+    assert abs(d - at.delay[0]) < 1e-9 and d > still.delay[0]
+    c = model.profile.mean_speed(10.0, 100.0)
+    u = (1000.0 + 4.0 * d) / math.hypot(1000.0 + 4.0 * d, 90.0)
+    assert abs(moving.doppler[0] - (c - 4.0 * u) / c) < 1e-12 and still.doppler[0] == 1.0

@@ -22,6 +22,8 @@ pytestmark = pytest.mark.skipif(PROGRAM is None, reason="Bellhop is not installe
 C = 1500.0                      # isovelocity water, m/s
 DEEP = 5000.0                   # a bottom far enough that its paths are long, late and weak
 SEABED = (1600.0, 1.8, 0.8)
+F2 = 25.0 ** 2                  # the test frequency, kHz, squared
+THORP_DB_PER_M = (3.3e-3 + 0.11 * F2 / (1 + F2) + 44 * F2 / (4100 + F2) + 3e-4 * F2) / 1000
 THERMO = [(0.0, 1520.0), (20.0, 1519.0), (40.0, 1490.0), (60.0, 1485.0), (200.0, 1487.0)]
 
 
@@ -94,9 +96,11 @@ def test_the_readers_agree_with_the_bellhop_distributions_own_readers(tmp_path):
 
 def test_isovelocity_arrivals_and_tl_match_the_image_method(tmp_path):
     """Direct path R1 = sqrt(r^2 + (zr - zs)^2), surface image R2 = sqrt(r^2 + (zr + zs)^2): the first
-    significant arrival is R1 / c, and the incoherent TL is -10 log10(1/R1^2 + 1/R2^2) (the pressure-release
-    surface reflects with |R| = 1; the bottom's paths, over 5 km down and back, add < 0.1 dB; no volume
-    attenuation in the .env)."""
+    significant arrival is R1 / c, and the incoherent TL is -10 log10(10^(-a R1/10)/R1^2 + 10^(-a R2/10)/R2^2)
+    (the pressure-release surface reflects with |R| = 1; the bottom's paths, over 5 km down and back, add
+    < 0.1 dB), with Thorp's volume attenuation a (the .env's top option 'T'), written as in Jensen, Kuperman,
+    Porter & Schmidt, Computational Ocean Acoustics, 2nd ed., eq. 1.47: 3.3e-3 + 0.11 f^2/(1 + f^2)
+    + 44 f^2/(4100 + f^2) + 3e-4 f^2 dB/km, f in kHz."""
     zs, rds, rrs = 50.0, [10.0, 45.0, 120.0, 400.0], [100.0, 400.0, 1000.0, 2000.0]
     shd, arr = _run_both(tmp_path, [(0.0, C), (DEEP, C)], DEEP, [zs], rds, rrs)
     _, _, _, p = bellhop.read_shd(shd)
@@ -107,14 +111,16 @@ def test_isovelocity_arrivals_and_tl_match_the_image_method(tmp_path):
             r1, r2 = math.hypot(r, zr - zs), math.hypot(r, zr + zs)
             worst_t = max(worst_t, abs(first[0, j, k] - r1 / C))
             tl = -20 * math.log10(abs(p[0, j, k]))
-            worst_tl = max(worst_tl, abs(tl + 10 * math.log10(1 / r1 ** 2 + 1 / r2 ** 2)))
+            theory = -10 * math.log10(sum(10 ** (-THORP_DB_PER_M * x / 10) / x ** 2 for x in (r1, r2)))
+            worst_tl = max(worst_tl, abs(tl - theory))
     assert worst_t < 1e-6, worst_t                    # 16 geometries: ray travel time = geometry / c
     assert worst_tl < 1.0, worst_tl
 
 
 def test_a_bellhop_failure_is_one_line_with_its_print_file_message(tmp_path):
     bad = bellhop.env_text(25_000.0, [(0.0, C), (100.0, C)], 100.0, SEABED, [50.0], [10.0], [100.0], "I")
-    bad = bad.replace("'CVW'", "'ZVW'")               # 'Z' is no SSP interpolation type Bellhop knows
+    assert bad.count("\n'CVW") == 1
+    bad = bad.replace("\n'CVW", "\n'ZVW")              # 'Z' is no SSP interpolation type Bellhop knows
     with pytest.raises(ValueError) as e:
         bellhop.run_bellhop(PROGRAM, bad, "shd", str(tmp_path))
     msg = str(e.value)

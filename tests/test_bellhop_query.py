@@ -20,17 +20,22 @@ from uwsimnet_zenoh.scene import load_scene
 DATA = Path(__file__).resolve().parent / "data"
 
 
-def _query(tx: tuple[float, float, float], rxs: list[tuple[float, float, float]], size: int = 32) -> Query:
+def _query(tx: tuple[float, float, float], rxs: list[tuple[float, float, float]], size: int = 32,
+           vel: dict[int, tuple[float, float, float]] | None = None) -> Query:
+    """One transmission at t = 0; `vel`: velocities by vehicle (0 = the sender, i + 1 = receiver i)."""
+    vel = vel or {}
     poses = PoseTable(["tx"] + [f"rx{i}" for i in range(len(rxs))])
-    poses.set_static("tx", tx)
-    for i, p in enumerate(rxs):
-        poses.set_static(f"rx{i}", p)
+    for i, (name, p) in enumerate([("tx", tx)] + [(f"rx{i}", p) for i, p in enumerate(rxs)]):
+        poses.set_external(name)
+        poses.update(name, 0.0, p, vel.get(i, (0.0, 0.0, 0.0)))
     return Query(0.0, Frame(1, 2, 0, size, size), [math.dist(tx, p) for p in rxs], list(range(len(rxs))), poses,
                  0, list(range(1, len(rxs) + 1)))
 
 
-@pytest.mark.parametrize("tx_depth", [10.0, 60.0])          # on the grid's source depth, and off it (swap)
-def test_many_receivers_at_once_answer_as_one_at_a_time(monkeypatch, tx_depth):
+@pytest.mark.parametrize(("tx_depth", "moving"), [(10.0, False), (60.0, False), (10.0, True)])
+def test_many_receivers_at_once_answer_as_one_at_a_time(monkeypatch, tx_depth, moving):
+    """On the grid's source depth and off it (the reciprocity swap); still, and with the sender and half of
+    the receivers moving at up to 5 m/s (the arrival's fixed point and the Doppler factor)."""
     monkeypatch.setenv("UWSIMNET_CACHE", str(DATA))
     monkeypatch.setenv("UWSIMNET_BELLHOP", "/nonexistent/bellhop")
     model = Network(load_scene(DATA / "ocean-shadow.xml")).modems["buoy-modem"].error
@@ -40,14 +45,21 @@ def test_many_receivers_at_once_answer_as_one_at_a_time(monkeypatch, tx_depth):
     for _ in range(256):
         r, a = rnd.uniform(0.0, 2200.0), rnd.uniform(0.0, 2 * math.pi)    # some beyond the grid's 2000 m
         rxs.append((r * math.cos(a), r * math.sin(a), -rnd.choice([rnd.uniform(0.0, 210.0), 10.0])))
-    many = model.answer(_query(tx, rxs))
+    vel = {}
+    if moving:
+        vel[0] = (1.5, -0.5, 0.2)
+        for i in range(0, len(rxs), 2):
+            vel[i + 1] = (rnd.uniform(-5, 5), rnd.uniform(-5, 5), rnd.uniform(-1, 1))
+    many = model.answer(_query(tx, rxs, vel=vel))
     assert len(rxs) > bellhop.MANY and len(many.per) == 256
     lost = delivered = 0
     for i, p in enumerate(rxs):
-        one = model.answer(_query(tx, [p]))
+        one = model.answer(_query(tx, [p], vel={k: v for k, v in ((0, vel.get(0)), (1, vel.get(i + 1))) if v}))
         for got, want in ((many.per[i], one.per[0]), (many.delay[i], one.delay[0]),
-                          (many.level_db[i], one.level_db[0])):
+                          (many.level_db[i], one.level_db[0]), (many.doppler[i], one.doppler[0])):
             assert (math.isnan(got) and math.isnan(want)) or got == pytest.approx(want, rel=1e-9, abs=1e-12), i
         lost += one.per[0] == 1.0
         delivered += one.per[0] < 0.5
     assert lost > 10 and delivered > 10                    # both outcomes are exercised
+    if moving:
+        assert sum(abs(d - 1.0) > 1e-4 for d in many.doppler) > 100

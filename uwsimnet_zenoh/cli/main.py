@@ -148,6 +148,16 @@ def cmd_plot(args: argparse.Namespace) -> int:
         files = plot_trace(args.trace, Path(args.out))
     except TraceError as e:
         raise UserError(str(e)) from None
+    if args.scene:                  # the TL field of links whose model is bellhop (docs/ocean.md)
+        from ..analysis.tl_field import plot_tl_field  # noqa: PLC0415
+        from ..app.checks import build_network  # noqa: PLC0415
+        from ..scene import SceneError, load_scene  # noqa: PLC0415
+
+        try:
+            net = build_network(load_scene(args.scene, on_warning=lambda _msg: None), flows=False)
+            files += plot_tl_field(net, args.trace, Path(args.out))
+        except (SceneError, OSError) as e:
+            raise UserError(str(e)) from None
     for f in files:
         print(f)
     return 0
@@ -218,6 +228,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     pl = sub.add_parser("plot", help="PNG figures of a trace")
     pl.add_argument("trace")
     pl.add_argument("-o", "--out", default="figures")
+    pl.add_argument("--scene", help="the run's scene: adds the TL field of its bellhop links (docs/ocean.md)")
     pl.set_defaults(fn=cmd_plot)
 
     if command not in CORE:

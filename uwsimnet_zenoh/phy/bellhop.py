@@ -10,7 +10,9 @@ interpolation in (source depth, receiver depth, range); then, with the device's 
 BER by the modulation, PER = 1 - (1 - BER)^(8 L).  Delay spread as a loss (`<isi>off</isi>` to leave it out):
 the fraction f of the arrivals' energy that comes more than one bit after the first arrival is interference,
 SINR = (1 - f) SNR / (1 + f SNR), and Eb/N0 = SINR B/R (less the implementation loss).  The arrival is the
-delay.  A receiver with no arrival, or beyond the grid, loses the frame.  The environment is range-independent
+delay, taken where a moving receiver is when the sound reaches it (the grid's delay field solved for the
+receiver's constant velocity); the Doppler factor as the `ocean` model's, with the profile's mean speed.
+A receiver with no arrival, or beyond the grid, loses the frame.  The environment is range-independent
 here: the depth below the origin.
 The grid's source depths are `sources` (or every `sourceStep` m); a sender far from all of them whose receiver
 is nearer one swaps the two ends (reciprocity: the same TL and travel time both ways).
@@ -39,9 +41,10 @@ import numpy as np
 
 from .acoustic import _BER_SCALAR, MODULATIONS, AcousticLink
 from .models import Answer, ChannelModel, ModelContext, Query
+from .ocean import doppler_factor
 
 log = logging.getLogger("uwsimnet.bellhop")
-GRID_VERSION = "uwsimnet-bellhop-grid-2"
+GRID_VERSION = "uwsimnet-bellhop-grid-4"
 LATE_S = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1)
 """Delays after the first arrival (s) at which the grid keeps the fraction of arrival energy still to come."""
 HOWTO = ("Bellhop not found: run `make bellhop` (installs the aubellhop wheel's binary into .tools/bellhop),"
@@ -79,12 +82,13 @@ def _tag(path: str, _size: int, _mtime_ns: int) -> str:
 
 def env_text(freq_hz: float, profile: list[tuple[float, float]], bottom_m: float, seabed: tuple[float, float, float],
              sds: list[float], rds: list[float], rrs_m: list[float], run: str, beams: int = 0) -> str:
-    """A Bellhop .env: one fluid layer (C-linear profile, vacuum surface) over an acousto-elastic half-space
-    (sound speed m/s, density g/cm^3, attenuation dB/wavelength); sources, receivers and ranges as given."""
+    """A Bellhop .env: one fluid layer (C-linear profile, vacuum surface, Thorp volume attenuation) over an
+    acousto-elastic half-space (sound speed m/s, density g/cm^3, attenuation dB/wavelength); sources,
+    receivers and ranges as given."""
     pts = [(d, c) for d, c in profile if d < bottom_m]
     pts.append((bottom_m, _speed_at(profile, bottom_m)))
     cp, rho, att = seabed
-    lines = ["'uwsimnet'", f"{freq_hz:.6f}", "1", "'CVW'", f"0 0.0 {bottom_m:.6f}"]
+    lines = ["'uwsimnet'", f"{freq_hz:.6f}", "1", "'CVWT'", f"0 0.0 {bottom_m:.6f}"]
     lines += [f"{d:.6f} {c:.6f} /" for d, c in pts]
     lines += ["'A' 0.0", f"{bottom_m:.6f} {cp:.6f} 0.0 {rho:.6f} {att:.6f} /"]
     for vals, scale in ((sds, 1.0), (rds, 1.0), (rrs_m, 1e-3)):
@@ -128,10 +132,14 @@ def _rr_is_double(data: bytes, rec: int, nrr: int) -> bool:
 def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per (source depth, receiver depth, range) of a Bellhop ascii .arr file ('2D'): the first significant
     arrival (earliest within `window_db` of the strongest; nan: none), the rms delay spread (s), and the
-    fraction of the arrivals' energy (sum |A|^2) that comes later than first + each of LATE_S."""
+    fraction of the arrivals' energy (sum |A|^2) that comes later than first + each of LATE_S.
+    Each arrival's amplitude is |A| exp(omega Im(tau)): Bellhop leaves the volume attenuation (top option 'T')
+    out of the amplitude column and writes it as the delay's imaginary part (aubellhop's readers.py builds
+    the complex amplitude A exp(-i(phase + omega tau)) from the same columns)."""
     tok = text.split()
     if not tok or "2D" not in tok[0]:
         raise ValueError("not a 2D Bellhop arrivals file")
+    omega = 2.0 * math.pi * float(tok[1])
     pos = 2                                       # '2D', freq
     counts = []
     for _ in range(3):
@@ -153,7 +161,9 @@ def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.nd
                     continue
                 a = np.array(tok[pos:pos + 8 * n], dtype=float).reshape(n, 8)
                 pos += 8 * n
-                amp, delay = np.abs(a[:, 0]), a[:, 2]
+                amp, delay = np.abs(a[:, 0]) * np.exp(omega * a[:, 3]), a[:, 2]
+                if not amp.max() > 0.0:                   # every path attenuated to nothing: no arrival
+                    continue
                 strong = amp >= amp.max() * 10 ** (-window_db / 20)
                 first[i, j, k] = delay[strong].min()
                 w = amp ** 2
@@ -295,6 +305,7 @@ class BellhopModel(ChannelModel):
         self.isi = params.get("isi", "on") != "off"
         self.ber = _BER_SCALAR[m.modulation]         # BER of linear Eb/N0, on floats
         bottom = float(env.seafloor().depth(0.0, 0.0))
+        self.profile = env.sound_speed()
         max_range = float(params.get("maxRange", "5000"))
         r_step = float(params.get("rangeStep", "25"))
         z_step = float(params.get("depthStep", "2"))
@@ -353,21 +364,37 @@ class BellhopModel(ChannelModel):
             out.append((1 - f) * lo + f * hi)
         return out[0], out[1], out[2]
 
+    def _at(self, tx: Any, p: Any, zs0: float, off_s: float) -> tuple[float, float, float]:
+        """TL, delay, late fraction from the sender `tx` to a receiver at position p."""
+        zs, zr = zs0, -p[2]
+        if off_s > min(abs(zr - s) for s in self._axes[0]):    # reciprocity: a sender off the grid's source
+            zs, zr = zr, zs                                     # depths, to a receiver on one, swaps the ends
+        return self._point(zs, zr, math.hypot(p[0] - tx.position[0], p[1] - tx.position[1]))
+
     def answer(self, q: Query) -> Answer:
         if len(q.slots) > MANY:
             return self._answer_many(q)
         tx = q.sender
         zs0 = -tx.position[2]
-        sd = self._axes[0]
-        off_s = min(abs(zs0 - s) for s in sd)
+        off_s = min(abs(zs0 - s) for s in self._axes[0])
         per: list[float] = []
         delays: list[float] = []
         levels: list[float] = []
+        dopplers: list[float] = []
         for rx in q.receivers:
-            zs, zr = zs0, -rx.position[2]
-            if off_s > min(abs(zr - s) for s in sd):    # reciprocity: a sender off the grid's source depths,
-                zs, zr = zr, zs                          # to a receiver on one, swaps the ends
-            t, d, f = self._point(zs, zr, math.hypot(rx.position[0] - tx.position[0], rx.position[1] - tx.position[1]))
+            t, d, f = self._at(tx, rx.position, zs0, off_s)
+            moving = rx.velocity != (0.0, 0.0, 0.0)
+            at = rx.position
+            if moving and math.isfinite(d):           # motion during flight: the arrival where the receiver
+                for _ in range(3):                    # is then (fixed point; contraction |v| / c ~ 1e-3)
+                    at = tuple(p + v * d for p, v in zip(rx.position, rx.velocity, strict=True))
+                    t, d2, f = self._at(tx, at, zs0, off_s)
+                    if not math.isfinite(d2) or abs(d2 - d) < 1e-12:
+                        d = d2
+                        break
+                    d = d2
+            c = self.profile.mean_speed(max(0.0, zs0), max(0.0, -at[2]))
+            dopplers.append(doppler_factor(tx.position, at, tx.velocity, rx.velocity, c))
             delays.append(d)
             levels.append(self.link.sl_db - t)
             if not math.isfinite(t) or not math.isfinite(d):
@@ -378,30 +405,57 @@ class BellhopModel(ChannelModel):
             ebn0 = (1.0 - f) * snr / (1.0 + f * snr) * self.to_ebn0     # ISI: energy a bit late is interference
             b = self.ber(ebn0)
             per.append(1.0 if b >= 1.0 else -math.expm1(8.0 * q.size * math.log1p(-b)))
-        return Answer(per, delays, levels)
+        return Answer(per, delays, levels, dopplers)
 
     def _answer_many(self, q: Query) -> Answer:
         """`answer` for many receivers: the same arithmetic on numpy arrays, one trilinear gather of the
-        stacked (TL, delay, late fraction) table (numpy's call cost is paid once per frame, not per receiver)."""
-        tx = q.sender.position
-        p = np.array([r.position for r in q.receivers], dtype=float)
-        sd = self.grid.sd
-        zs = np.full(len(p), -tx[2])
-        zr = -p[:, 2]
-        r = np.hypot(p[:, 0] - tx[0], p[:, 1] - tx[1])
-        swap = np.abs(zs[0] - sd).min() > np.abs(zr[:, None] - sd).min(axis=1)     # reciprocity, as `answer`
-        zs, zr = np.where(swap, zr, zs), np.where(swap, zs, zr)
-        v = _trilinear_stack(self.grid.sd, self.grid.rd, self.grid.rr, self._stack, zs, zr, r)
-        beyond = (r < self.grid.rr[0]) | (r > self.grid.rr[-1])
-        v[beyond] = (math.nan, math.nan, 0.0)
-        tl, delay, f = v[:, 0], v[:, 1], np.clip(v[:, 2], 0.0, 1.0)
+        stacked (TL, delay, late fraction) table per pass (numpy's call cost is paid per frame, not per
+        receiver); the moving receivers' fixed point and the Doppler factors as in `answer`."""
+        sender, rxs = q.sender, q.receivers
+        tx, txv = np.array(sender.position, dtype=float), np.array(sender.velocity, dtype=float)
+        p = np.array([r.position for r in rxs], dtype=float)
+        vel = np.array([r.velocity for r in rxs], dtype=float)
+        off_s = float(np.abs(-tx[2] - self.grid.sd).min())
+        tl, delay, f = self._at_many(tx, p, off_s)
+        at = p.copy()
+        active = vel.any(axis=1) & np.isfinite(delay)        # motion during flight, as `answer` (3 passes)
+        for _ in range(3):
+            idx = np.flatnonzero(active)
+            if not len(idx):
+                break
+            at[idx] = p[idx] + vel[idx] * delay[idx, None]
+            tl[idx], d2, f[idx] = self._at_many(tx, at[idx], off_s)
+            active[idx[~np.isfinite(d2) | (np.abs(d2 - delay[idx]) < 1e-12)]] = False
+            delay[idx] = d2
+        if txv.any() or vel.any():
+            zs0 = max(0.0, -float(tx[2]))
+            c = np.array([self.profile.mean_speed(zs0, max(0.0, -z)) for z in at[:, 2].tolist()])
+            d = at - tx
+            n = np.sqrt((d * d).sum(axis=1))
+            u = d / np.where(n == 0.0, 1.0, n)[:, None]
+            doppler = np.where(n == 0.0, 1.0, (c - (vel * u).sum(axis=1)) / (c - (txv * u).sum(axis=1))).tolist()
+        else:
+            doppler = [1.0] * len(rxs)                        # still water, still ends: exactly 1
+        f = np.clip(f, 0.0, 1.0)
         ok = np.isfinite(tl) & np.isfinite(delay)
         with np.errstate(invalid="ignore", over="ignore"):
             snr = 10.0 ** (0.1 * np.minimum(self.snr_const - np.where(ok, tl, 0.0), 3000.0))
             ebn0 = (1.0 - f) * snr / (1.0 + f * snr) * self.to_ebn0     # ISI: energy a bit late is interference
             b = np.minimum(np.asarray(MODULATIONS[self.link.modem.modulation](ebn0), dtype=float), 1.0)
             per = np.where(ok & (b < 1.0), -np.expm1(8.0 * q.size * np.log1p(-np.where(b < 1.0, b, 0.0))), 1.0)
-        return Answer(per.tolist(), delay.tolist(), (self.link.sl_db - tl).tolist())
+        return Answer(per.tolist(), delay.tolist(), (self.link.sl_db - tl).tolist(), doppler)
+
+    def _at_many(self, tx: np.ndarray, p: np.ndarray, off_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_at` for receivers at positions p (n, 3): TL, delay, late fraction (nan, nan, 0 beyond the ranges)."""
+        sd = self.grid.sd
+        zs = np.full(len(p), -tx[2])
+        zr = -p[:, 2]
+        r = np.hypot(p[:, 0] - tx[0], p[:, 1] - tx[1])
+        swap = off_s > np.abs(zr[:, None] - sd).min(axis=1)          # reciprocity, as `_at`
+        zs, zr = np.where(swap, zr, zs), np.where(swap, zs, zr)
+        v = _trilinear_stack(sd, self.grid.rd, self.grid.rr, self._stack, zs, zr, r)
+        v[(r < self.grid.rr[0]) | (r > self.grid.rr[-1])] = (math.nan, math.nan, 0.0)
+        return v[:, 0], v[:, 1], v[:, 2]
 
 
 MANY = 24
