@@ -35,8 +35,9 @@ from uwsimnet_zenoh.phy.models import Query  # noqa: E402
 from uwsimnet_zenoh.scene import load_scene, load_scene_text  # noqa: E402
 
 
-def query(n: int, seed: int = 1) -> Query:
-    """One transmission from the buoy (10 m deep) to n receivers at random ranges 30-1990 m, depths 1-199 m."""
+def query(n: int, seed: int = 1, moving: bool = False) -> Query:
+    """One transmission from the buoy (10 m deep) to n receivers at random ranges 30-1990 m, depths 1-199 m;
+    `moving`: every receiver at a random velocity of up to 2 m/s per axis (the arrival's fixed point, Doppler)."""
     rnd = random.Random(seed)
     poses = PoseTable(["tx"] + [f"rx{i}" for i in range(n)])
     poses.set_static("tx", (0.0, 0.0, -10.0))
@@ -44,7 +45,11 @@ def query(n: int, seed: int = 1) -> Query:
     for i in range(n):
         r, z, a = rnd.uniform(30, 1990), rnd.uniform(1, 199), rnd.uniform(0, 6.283)
         p = (r * math.cos(a), r * math.sin(a), -z)
-        poses.set_static(f"rx{i}", p)
+        if moving:
+            poses.set_external(f"rx{i}")
+            poses.update(f"rx{i}", 0.0, p, tuple(rnd.uniform(-2, 2) for _ in range(3)))
+        else:
+            poses.set_static(f"rx{i}", p)
         dist.append(math.dist((0.0, 0.0, -10.0), p))
     return Query(0.0, Frame(1, 2, 0, 32, 32), dist, list(range(n)), poses, 0, list(range(1, n + 1)))
 
@@ -66,12 +71,15 @@ def bench_query(ns: list[int], repeat: int) -> None:
     model = net.modems["buoy-modem"].error
     straight = Network(load_scene_text(_without_model(), str(SCENE))).modems["buoy-modem"].error
     print(f"query: grid {model.grid.tl.shape} (source, receiver depth, range) from {model.path.name}")
-    print(f"{'receivers':>9} {'bellhop us/call':>16} {'us/receiver':>12} {'straight us/call':>17}")
+    print(f"query: Python floats up to {bellhop.MANY} receivers, numpy above")
+    print(f"{'receivers':>9} {'bellhop us/call':>16} {'us/receiver':>12} {'moving us/call':>15} "
+          f"{'straight us/call':>17}")
     for n in ns:
         q = query(n)
         b = best_us(model.answer, q, repeat)
+        m = best_us(model.answer, query(n, moving=True), repeat)
         s = best_us(straight.answer, q, repeat)
-        print(f"{n:>9} {b:>16.1f} {b / n:>12.2f} {s:>17.1f}")
+        print(f"{n:>9} {b:>16.1f} {b / n:>12.2f} {m:>15.1f} {s:>17.1f}")
 
 
 def _without_model() -> str:

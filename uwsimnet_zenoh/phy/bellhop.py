@@ -377,6 +377,7 @@ class BellhopModel(ChannelModel):
         tx = q.sender
         zs0 = -tx.position[2]
         off_s = min(abs(zs0 - s) for s in self._axes[0])
+        tx_moving = tx.velocity != (0.0, 0.0, 0.0)
         per: list[float] = []
         delays: list[float] = []
         levels: list[float] = []
@@ -393,8 +394,11 @@ class BellhopModel(ChannelModel):
                         d = d2
                         break
                     d = d2
-            c = self.profile.mean_speed(max(0.0, zs0), max(0.0, -at[2]))
-            dopplers.append(doppler_factor(tx.position, at, tx.velocity, rx.velocity, c))
+            if moving or tx_moving:
+                c = self.profile.mean_speed(max(0.0, zs0), max(0.0, -at[2]))
+                dopplers.append(doppler_factor(tx.position, at, tx.velocity, rx.velocity, c))
+            else:
+                dopplers.append(1.0)                  # both ends still: the formula's value, exactly
             delays.append(d)
             levels.append(self.link.sl_db - t)
             if not math.isfinite(t) or not math.isfinite(d):
