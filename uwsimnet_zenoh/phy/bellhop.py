@@ -433,7 +433,7 @@ class BellhopModel(ChannelModel):
             delay[idx] = d2
         if txv.any() or vel.any():
             zs0 = max(0.0, -float(tx[2]))
-            c = np.array([self.profile.mean_speed(zs0, max(0.0, -z)) for z in at[:, 2].tolist()])
+            c = mean_speeds(self.profile, zs0, np.maximum(0.0, -at[:, 2]))
             d = at - tx
             n = np.sqrt((d * d).sum(axis=1))
             u = d / np.where(n == 0.0, 1.0, n)[:, None]
@@ -460,6 +460,36 @@ class BellhopModel(ChannelModel):
         v = _trilinear_stack(sd, self.grid.rd, self.grid.rr, self._stack, zs, zr, r)
         v[(r < self.grid.rr[0]) | (r > self.grid.rr[-1])] = (math.nan, math.nan, 0.0)
         return v[:, 0], v[:, 1], v[:, 2]
+
+
+def mean_speeds(profile: Any, z0: float, z: np.ndarray) -> np.ndarray:
+    """`SoundSpeedProfile.mean_speed(z0, z)` for an array of depths z: the harmonic mean of c between z0 and
+    each z, (b - a) / (S(b) - S(a)) with S the travel time down from the profile's first depth (c linear
+    between the points, held beyond them: the integral of 1/c over a linear piece is ln(c1/c0) / gradient)."""
+    ds, cs = np.array(profile.depths, dtype=float), np.array(profile.speeds, dtype=float)
+    z = np.asarray(z, dtype=float)
+    if len(ds) == 1:
+        return np.full(len(z), cs[0])
+
+    def slowness(x: np.ndarray) -> np.ndarray:
+        dd, dc = np.diff(ds), np.diff(cs)
+        flat = np.abs(dc) < 1e-12
+        seg = np.where(flat, dd / cs[:-1], dd * np.log(cs[1:] / cs[:-1]) / np.where(flat, 1.0, dc))
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        xc = np.clip(x, ds[0], ds[-1])
+        i = np.clip(np.searchsorted(ds, xc, side="right") - 1, 0, len(ds) - 2)
+        c0 = cs[i]
+        c1 = c0 + (xc - ds[i]) / dd[i] * dc[i]
+        h = xc - ds[i]
+        piece = np.where(np.abs(c1 - c0) < 1e-12, h / c0, h * np.log(c1 / c0) / np.where(np.abs(c1 - c0) < 1e-12,
+                                                                                         1.0, c1 - c0))
+        return cum[i] + piece + np.maximum(x - ds[-1], 0.0) / cs[-1] - np.maximum(ds[0] - x, 0.0) / cs[0]
+
+    a, b = np.minimum(z0, z), np.maximum(z0, z)
+    same = b - a < 1e-9
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = (b - a) / (slowness(b) - slowness(a))
+    return np.where(same, np.interp(a, ds, cs), out)
 
 
 MANY = 24
