@@ -78,6 +78,15 @@ while the broker's per-frame work stays small next to the line's (500 frames/s o
 to 70-90 % of a core: those rows measured a saturated broker, not the stall)."""
 
 
+CHANNEL_MODEL = ""
+"""`--channel-model bellhop`: the line's channel is acoustic (EvoLogics S2CR 18/34 presets) in the summer-thermocline
+environment, its model Bellhop on a cached grid (computed by `uwsimnet validate` before the broker starts)."""
+BELLHOP_ENV = """<environment><preset>summer-thermocline</preset><bathymetry>flat 100</bathymetry></environment>"""
+BELLHOP_CHANNEL = """<AcousticCommsChannel><id>0</id><channelModel><name>bellhop</name><sources>0.5</sources>
+<maxDepth>20</maxDepth><depthStep>1</depthStep><maxRange>400</maxRange><rangeStep>5</rangeStep></channelModel>
+</AcousticCommsChannel>"""
+
+
 def scene_xml(n: int, world: str, *, zero_delay: bool = False, flood: bool = False) -> str:
     """n vehicles (poseSource zenoh) 100 m apart on a line, one modem each, each hearing only its
     neighbours (150 m range; 16 B frames take 1.3 ms: no collisions with the staggered sends below);
@@ -93,6 +102,11 @@ def scene_xml(n: int, world: str, *, zero_delay: bool = False, flood: bool = Fal
 <intrinsicDelay>0</intrinsicDelay><maxDistance>{reach}</maxDistance><rateErrorModel><errorUnit>packet</errorUnit>
 <errorRateExpr>0</errorRateExpr></rateErrorModel></CustomCommsDevice></vehicle>""")
     chans = f"<CustomCommsChannel><id>0</id><propTimeIncPerMeter>{prop}</propTimeIncPerMeter></CustomCommsChannel>"
+    if CHANNEL_MODEL == "bellhop" and not zero_delay and not flood:
+        chans = BELLHOP_ENV + BELLHOP_CHANNEL
+        vs = [f"""<vehicle><name>v{i}</name><poseSource>zenoh</poseSource><AcousticCommsDevice>
+<dccommsId>m{i}</dccommsId><mac>{addr(i)}</mac><txChannelId>0</txChannelId><rxChannelId>0</rxChannelId><preset>evologics-s2cr-18-34</preset>
+<txFifoSize>100000</txFifoSize><maxDistance>{reach}</maxDistance></AcousticCommsDevice></vehicle>""" for i in range(n)]
     if flood:
         chans += "<CustomCommsChannel><id>1</id><propTimeIncPerMeter>0.6667</propTimeIncPerMeter></CustomCommsChannel>"
         for name, a, y in (("fsrc", 253, 10), ("fbusy", 254, 20)):
@@ -254,6 +268,8 @@ BROKER_ZENOH_CONFIG: str | None = None
 def broker(scene: str, endpoint: str, tmp: Path, name: str) -> Sub:
     path = tmp / f"{name}.xml"
     path.write_text(scene)
+    if CHANNEL_MODEL:                     # its grid is computed (once, then cached) before the run starts
+        subprocess.run([PY, "-m", "uwsimnet_zenoh.cli", "validate", str(path)], check=True, cwd=ROOT)
     return Sub([PY, "-m", "uwsimnet_zenoh.cli", "run", str(path), "--clock", "realtime", "--listen", endpoint,
                 "--trace", str(tmp / f"{name}.jsonl"),
                 *(["--zenoh-config", BROKER_ZENOH_CONFIG] if BROKER_ZENOH_CONFIG else [])],
@@ -407,14 +423,17 @@ def main() -> None:
     ap.add_argument("--modems", default="2,16,64")
     ap.add_argument("--round-trips", type=int, default=2000)
     ap.add_argument("--markdown", action="store_true")
+    ap.add_argument("--channel-model", choices=["", "bellhop"], default="",
+                    help="bellhop: the line's modems acoustic, the channel model Bellhop on a cached grid")
     ap.add_argument("--broker-zenoh-config", metavar="FILE", help="the broker's Zenoh configuration file")
     ap.add_argument("--rt", type=int, default=0, help="SCHED_RR priority for broker and apps (0: normal)")
     ap.add_argument("--stall", type=int, default=0, metavar="N",
                     help="also N modems + a 4 MB/s flood on a 2nd channel, its rx subscriber running, then"
                          " SIGSTOPped (0: not measured)")
     a = ap.parse_args()
-    global BROKER_ZENOH_CONFIG
+    global BROKER_ZENOH_CONFIG, CHANNEL_MODEL
     BROKER_ZENOH_CONFIG = a.broker_zenoh_config
+    CHANNEL_MODEL = a.channel_model
     if a.role == "poses":
         role_poses(a.endpoint, a.world, a.n, a.hz, a.seconds, a.pose_phase)
         return
