@@ -8,7 +8,11 @@ program, and what one frame's query costs from a cached grid.
   random ranges and depths: `answer()` timed, best of `--repeat` batches, per call and per receiver; the
   straight-path `acoustic` model of the same device beside it.
 
-    .venv/bin/python bench/bench_bellhop.py --receivers 1,16,256 --sources 1,4
+- run (`--run N`): `uwsimnet run SCENE --trace` as a whole process on N sensors sending to a sink (pure
+  ALOHA, acoustic modems in the summer thermocline), with the bellhop model (grid computed first by
+  `uwsimnet validate`, into a temporary cache) and with the straight-path model: wall time, tx frames/s.
+
+    .venv/bin/python bench/bench_bellhop.py --receivers 1,16,256 --sources 1,4 --run 256
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import argparse
 import math
 import os
 import random
+import subprocess
 import sys
 import tempfile
 import time
@@ -119,15 +124,79 @@ def bench_grid(counts: list[int], workers: int) -> None:
               f"{g.tl.size} TL cells")
 
 
+def run_scene(n: int, duration: float, model: bool) -> str:
+    """N sensors on a 500 m circle at 50 m depth sending to a sink at its centre (Poisson, 32-byte frames,
+    20 frames/s in all, no MAC, no queue: pure ALOHA), EvoLogics S2CR 18/34 modems in the summer thermocline;
+    `model`: with the bellhop channel model (its grid: source depth 50 m, 0-200 m every 2 m, 25-1200 m every
+    25 m; the delay-spread loss off, so that both models deliver alike and the runs do the same work: with it,
+    the 500 m links at 50 m depth lose most frames to the echoes, f = 0.24 of the energy a bit late), else the
+    straight-path acoustic model."""
+    dev = ("<AcousticCommsDevice><dccommsId>{id}</dccommsId><mac>{mac}</mac><txChannelId>0</txChannelId>"
+           "<rxChannelId>0</rxChannelId><preset>evologics-s2cr-18-34</preset><txFifoSize>0</txFifoSize>"
+           "<macProtocol><name>none</name><delivery>addressee</delivery></macProtocol></AcousticCommsDevice>")
+    cm = ("<channelModel><name>bellhop</name><sources>50</sources><maxDepth>200</maxDepth><depthStep>2</depthStep>"
+          "<maxRange>1200</maxRange><rangeStep>25</rangeStep><isi>off</isi></channelModel>") if model else ""
+    out = ["<UWSimScene>", f"<simulation><duration>{duration!r}</duration><seed>1</seed></simulation>",
+           "<environment><origin>41.38 2.18</origin><preset>summer-thermocline</preset>"
+           "<bathymetry>flat 1000</bathymetry></environment>",
+           f"<AcousticCommsChannel><id>0</id>{cm}</AcousticCommsChannel>",
+           f"<vehicle><name>sink</name><position>0 0 -50</position>{dev.format(id='sink', mac=0)}</vehicle>"]
+    for i in range(n):
+        a = 2 * math.pi * i / n
+        out.append(f"<vehicle><name>v{i}</name><position>{500 * math.cos(a)!r} {500 * math.sin(a)!r} -50</position>"
+                   f"{dev.format(id=f's{i}', mac=i + 1 + (i >= 254))}</vehicle>")
+        out.append(f"<flow><name>s{i}</name><src>s{i}</src><dst>0</dst><size>32</size><interval>{n / 20.0!r}"
+                   "</interval><arrival>poisson</arrival></flow>")
+    return "\n".join(out + ["</UWSimScene>"]) + "\n"
+
+
+def bench_run(n: int, duration: float, repeat: int) -> None:
+    """`uwsimnet run SCENE --trace` as a process, with and without the bellhop model, best of `repeat`."""
+    uwsimnet = str(Path(sys.executable).parent / "uwsimnet")
+    with tempfile.TemporaryDirectory() as d:
+        env = dict(os.environ, UWSIMNET_CACHE=d)
+        rows = []
+        for model in (True, False):
+            scene = Path(d) / f"{'bellhop' if model else 'straight'}-{n}.xml"
+            scene.write_text(run_scene(n, duration, model))
+            t0 = time.perf_counter()
+            v = subprocess.run([uwsimnet, "validate", str(scene)], env=env, capture_output=True, text=True)
+            if v.returncode != 0:
+                print(f"run: {scene.name}: {v.stderr.strip()}")
+                return
+            grid = time.perf_counter() - t0
+            best = float("inf")
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                subprocess.run([uwsimnet, "run", str(scene), "--trace", f"{d}/t.jsonl"], env=env, check=True,
+                               capture_output=True)
+                best = min(best, time.perf_counter() - t0)
+            lines = Path(f"{d}/t.jsonl").read_text().splitlines()
+            tx = sum('"ev":"tx"' in x.replace(" ", "") for x in lines)
+            rx = sum('"ev":"rx"' in x.replace(" ", "") for x in lines)
+            rows.append((scene.stem, grid, best, tx, rx))
+        print(f"run: N = {n}, {duration:g} s simulated, `uwsimnet run --trace`, best of {repeat} (whole process)")
+        for name, grid, wall, tx, rx in rows:
+            print(f"  {name:>14}: validate {grid:.2f} s (the grid, when bellhop), run {wall:.2f} s, {tx} tx, "
+                  f"{rx} rx, {tx / wall:.0f} tx frames/s")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--receivers", default="1,16,256")
     ap.add_argument("--sources", default="1,4", help="source-depth counts of the grids to time ('' = none)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--run", type=int, default=0, help="N: also time `uwsimnet run --trace` on N sensors")
+    ap.add_argument("--duration", type=float, default=250.0, help="simulated s of --run")
     a = ap.parse_args()
     bench_query([int(x) for x in a.receivers.split(",") if x], a.repeat)
     bench_grid([int(x) for x in a.sources.split(",") if x], a.workers)
+    if a.run:
+        if bellhop.find_program() is None:
+            print(f"run: skipped: {bellhop.HOWTO}")
+        else:
+            bench_run(a.run, a.duration, min(a.repeat, 3))
     sys.stdout.flush()
 
 

@@ -328,7 +328,7 @@ class BellhopModel(ChannelModel):
         found = sorted(where.glob(f"{stem}*.npz")) if program is None else []     # (untagged: before tags)
         self.path = found[-1] if found else where / f"{stem}-{program_tag(program) if program else 'none'}.npz"
         if self.path.exists():
-            self.grid = Grid.load(self.path)
+            self.grid = _load(str(self.path), self.path.stat().st_mtime_ns)
             self._tables()
             return
         if program is None:
@@ -340,14 +340,9 @@ class BellhopModel(ChannelModel):
         self._tables()
 
     def _tables(self) -> None:
-        """The grid as Python lists for the per-frame path (a few receivers: math beats numpy's call cost)."""
-        g = self.grid
-        late = g.late_fraction(np.repeat(g.sd, len(g.rd) * len(g.rr)), np.tile(np.repeat(g.rd, len(g.rr)), len(g.sd)),
-                               np.tile(g.rr, len(g.sd) * len(g.rd)), self.bit_s).reshape(g.tl.shape)
-        self._axes = (g.sd.tolist(), g.rd.tolist(), g.rr.tolist())
-        self._tl, self._dl = g.tl.tolist(), g.delay.tolist()
-        self._late = late.tolist() if self.isi else np.zeros_like(late).tolist()
-        self._stack = np.stack([g.tl, g.delay, late if self.isi else np.zeros_like(late)], axis=-1)
+        """The grid as Python lists for the per-frame path (a few receivers: math beats numpy's call cost) and
+        as one stacked array for the numpy path; shared by the models of one grid, bit rate and ISI setting."""
+        self._axes, self._tl, self._dl, self._late, self._stack = _prepared(self.grid, self.bit_s, self.isi)
 
     def _point(self, zs: float, zr: float, r: float) -> tuple[float, float, float]:
         """TL, delay and late fraction at one geometry (trilinear, depths held at the grid's ends; nan beyond
@@ -460,6 +455,24 @@ class BellhopModel(ChannelModel):
         v = _trilinear_stack(sd, self.grid.rd, self.grid.rr, self._stack, zs, zr, r)
         v[(r < self.grid.rr[0]) | (r > self.grid.rr[-1])] = (math.nan, math.nan, 0.0)
         return v[:, 0], v[:, 1], v[:, 2]
+
+
+@lru_cache(maxsize=16)
+def _load(path: str, _mtime_ns: int) -> Grid:
+    """A cached grid, loaded once per process (every transmitting device of a scene builds its own model of
+    the same grid: 257 loads took 1.6 s of a 256-sensor run's start); read-only once loaded."""
+    return Grid.load(path)
+
+
+@lru_cache(maxsize=32)
+def _prepared(g: Grid, bit_s: float, isi: bool) -> tuple[Any, list, list, list, np.ndarray]:
+    """`BellhopModel._tables` of a grid: axes, TL, delay and late-fraction lists, the stacked array."""
+    late = g.late_fraction(np.repeat(g.sd, len(g.rd) * len(g.rr)), np.tile(np.repeat(g.rd, len(g.rr)), len(g.sd)),
+                           np.tile(g.rr, len(g.sd) * len(g.rd)), bit_s).reshape(g.tl.shape)
+    if not isi:
+        late = np.zeros_like(late)
+    return ((g.sd.tolist(), g.rd.tolist(), g.rr.tolist()), g.tl.tolist(), g.delay.tolist(), late.tolist(),
+            np.stack([g.tl, g.delay, late], axis=-1))
 
 
 def mean_speeds(profile: Any, z0: float, z: np.ndarray) -> np.ndarray:
