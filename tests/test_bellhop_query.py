@@ -79,3 +79,11 @@ def test_the_vectorised_mean_speed_is_the_profiles():
             got = bellhop.mean_speeds(prof, z0, z)
             want = [prof.mean_speed(z0, x) for x in z.tolist()]
             assert got == pytest.approx(want, rel=1e-9, abs=0.0), name
+
+
+def test_the_devices_of_a_scene_share_one_loaded_grid(monkeypatch):
+    monkeypatch.setenv("UWSIMNET_CACHE", str(DATA))
+    monkeypatch.setenv("UWSIMNET_BELLHOP", "/nonexistent/bellhop")
+    net = Network(load_scene(DATA / "ocean-shadow.xml"))
+    a, b = net.modems["buoy-modem"].error, net.modems["auv-modem"].error
+    assert a is not b and a.grid is b.grid and a._stack is b._stack
