@@ -237,28 +237,39 @@ def _trilinear(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarray, q0
     return out
 
 
-def run_bellhop(program: str, env: str, want: str, workdir: str) -> bytes:
-    """Run Bellhop on one .env text in `workdir`; the bytes of its output file `want` ('shd' or 'arr')."""
+def run_bellhop(program: str, env: str, want: str, workdir: str, timeout: float = 3600.0) -> bytes:
+    """Run Bellhop on one .env text in `workdir`; the bytes of its output file `want` ('shd' or 'arr').
+    Every failure is one line (ValueError): the end of Bellhop's .prt, a timeout, a program that cannot run."""
     base = os.path.join(workdir, "run")
     Path(base + ".env").write_text(env)
-    done = subprocess.run([program, base], cwd=workdir, capture_output=True, text=True, timeout=3600)
+    try:
+        done = subprocess.run([program, base], cwd=workdir, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise ValueError(f"Bellhop ({program}) ran over its timeout of {timeout:g} s (parameter <timeout>)") from None
+    except OSError as e:
+        raise ValueError(f"Bellhop ({program}) cannot run: {e.strerror or e}") from None
     out = Path(f"{base}.{want}")
     if done.returncode != 0 or not out.exists():
         prt = Path(base + ".prt")
         tail = prt.read_text(errors="replace").strip().splitlines()[-3:] if prt.exists() else [done.stderr.strip()]
+        if not any(tail):
+            tail = [f"exit status {done.returncode}, no .{want} and no .prt written"]
         raise ValueError(f"Bellhop failed ({program}): {' | '.join(tail)}")
     return out.read_bytes()
 
 
 def compute_grid(program: str, freq_hz: float, profile: list[tuple[float, float]], bottom_m: float,
                  seabed: tuple[float, float, float], sds: list[float], rds: list[float], rrs_m: list[float],
-                 workers: int = 2) -> Grid:
-    """The grid from Bellhop: one TL run ('I') and one arrivals run ('A') per source depth, in parallel."""
+                 workers: int = 2, timeout: float = 3600.0) -> Grid:
+    """The grid from Bellhop: one TL run ('I') and one arrivals run ('A') per source depth, in parallel
+    (`timeout`: seconds per run)."""
     def one(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         with tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d1, \
                 tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d2:
-            shd = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "I"), "shd", d1)
-            arr = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "A"), "arr", d2)
+            shd = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "I"), "shd", d1,
+                              timeout)
+            arr = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "A"), "arr", d2,
+                              timeout)
         _, _, _, p = read_shd(shd)
         with np.errstate(divide="ignore"):
             tl = -20.0 * np.log10(np.abs(p[0]))
@@ -288,7 +299,7 @@ class BellhopModel(ChannelModel):
     """Ray-traced acoustics for an AcousticCommsDevice in the scene's <environment> (module docstring)."""
 
     family = "bellhop"
-    params_known = ("program", "workers", "isi")
+    params_known = ("program", "workers", "isi", "timeout")
     """Read only when the grid is not cached yet."""
 
     def __init__(self, params: Any, ctx: ModelContext) -> None:
@@ -333,8 +344,11 @@ class BellhopModel(ChannelModel):
             return
         if program is None:
             raise ValueError(HOWTO)
+        timeout = float(params.get("timeout", "3600"))
+        if not timeout > 0:
+            raise ValueError("timeout must be > 0 (seconds per Bellhop run)")
         self.grid = compute_grid(program, self.freq_hz, profile, bottom, seabed, sds, rds, rrs,
-                                 workers=int(params.get("workers", str(os.cpu_count() or 1))))
+                                 workers=int(params.get("workers", str(os.cpu_count() or 1))), timeout=timeout)
         where.mkdir(parents=True, exist_ok=True)
         self.grid.save(self.path)
         self._tables()
