@@ -5,6 +5,7 @@ wavefront meeting a moving receiver, Doppler factors against the arrival-time co
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -262,3 +263,32 @@ def test_doppler_tolerance_loses_the_frames_of_a_fast_closing_pair():
     assert slow.per[0] == 0.0 and fast.per[0] == 1.0 and across.per[0] == 0.0
     with pytest.raises(ValueError, match="dopplerTolerance"):
         testing.Harness("ocean", {"dopplerTolerance": "0"})
+
+
+def test_a_run_between_lat_lon_placed_vehicles_measures_the_geodesic(tmp_path):
+    """uwsimnet run on a scene placed in lat/lon: the trace's rx distance against Vincenty (and the depths)."""
+    lat0, lon0 = 43.0, 5.0
+    places = {"a": (43.0, 5.0, 10.0), "b": (43.05, 5.07, 40.0), "c": (42.97, 4.93, 25.0)}
+    vehicles = "".join(
+        f"<vehicle><name>{n}</name><geoPosition>{la} {lo} {d}</geoPosition><CustomCommsDevice>"
+        f"<dccommsId>{n}</dccommsId><mac>{i + 1}</mac><txChannelId>0</txChannelId><rxChannelId>0</rxChannelId>"
+        f"<rateErrorModel><errorUnit>packet</errorUnit><errorRateExpr>0</errorRateExpr></rateErrorModel>"
+        f"</CustomCommsDevice></vehicle>"
+        for i, (n, (la, lo, d)) in enumerate(places.items()))
+    text = (f'<?xml version="1.0"?><UWSimScene><simulation><duration>30</duration></simulation><environment>'
+            f"<origin>{lat0} {lon0}</origin></environment><CustomCommsChannel><id>0</id><channelModel><name>ocean"
+            f"</name></channelModel></CustomCommsChannel>{vehicles}"
+            "<flow><name>f</name><src>a</src><dst>255</dst><size>10</size><interval>5</interval></flow></UWSimScene>")
+    p = tmp_path / "geo.xml"
+    p.write_text(text)
+    trace = tmp_path / "geo.jsonl"
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(p), "--trace", str(trace)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    rx = [json.loads(line) for line in trace.read_text().splitlines() if '"ev": "rx"' in line or '"ev":"rx"' in line]
+    assert {x["dev"] for x in rx} == {"b", "c"}
+    for x in rx:
+        la, lo, d = places[x["dev"]]
+        expect = math.hypot(vincenty(43.0, 5.0, la, lo), d - 10.0)
+        assert abs(x["dist"] - expect) / expect < 5e-4, (x["dist"], expect)
+        print(f"{x['dev']}: trace {x['dist']:.3f} m, Vincenty + depths {expect:.3f} m")
