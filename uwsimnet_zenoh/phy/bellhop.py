@@ -27,6 +27,7 @@ import hashlib
 import logging
 import math
 import os
+import re
 import shutil
 import struct
 import subprocess
@@ -136,41 +137,61 @@ def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.nd
     Each arrival's amplitude is |A| exp(omega Im(tau)): Bellhop leaves the volume attenuation (top option 'T')
     out of the amplitude column and writes it as the delay's imaginary part (aubellhop's readers.py builds
     the complex amplitude A exp(-i(phase + omega tau)) from the same columns)."""
-    tok = text.split()
-    if not tok or "2D" not in tok[0]:
+    head = re.finditer(r"\S+", text)
+    tok = [m.group() for _, m in zip(range(2), head, strict=False)]    # range first: zip stops before head
+    if len(tok) < 2 or "2D" not in tok[0]:
         raise ValueError("not a 2D Bellhop arrivals file")
     omega = 2.0 * math.pi * float(tok[1])
-    pos = 2                                       # '2D', freq
     counts = []
-    for _ in range(3):
-        n = int(tok[pos])
+    for _ in range(3):                            # the source depths, receiver depths, ranges: a count, values
+        n = int(next(head).group())
         counts.append(n)
-        pos += 1 + n
+        end = 0
+        for _, m in zip(range(n), head, strict=False):
+            end = m.end()
     nsd, nrd, nrr = counts
+    data = np.fromstring(text[end:], sep=" ")    # the rest is numbers: counts and 8-column arrival rows
     first = np.full((nsd, nrd, nrr), np.nan)
     spread = np.full((nsd, nrd, nrr), np.nan)
     late = np.zeros((nsd, nrd, nrr, len(LATE_S)))
-    offsets = np.array(LATE_S)
+    rows, cells = [], []                          # where each cell's rows start in `data`, and its index
+    pos = 0
+    counts_at = data.tolist()
     for i in range(nsd):
         pos += 1                                  # the source's largest count
         for j in range(nrd):
             for k in range(nrr):
-                n = int(tok[pos])
+                n = int(counts_at[pos]) if pos < len(counts_at) else -1
                 pos += 1
-                if n == 0:
-                    continue
-                a = np.array(tok[pos:pos + 8 * n], dtype=float).reshape(n, 8)
-                pos += 8 * n
-                amp, delay = np.abs(a[:, 0]) * np.exp(omega * a[:, 3]), a[:, 2]
-                if not amp.max() > 0.0:                   # every path attenuated to nothing: no arrival
-                    continue
-                strong = amp >= amp.max() * 10 ** (-window_db / 20)
-                first[i, j, k] = delay[strong].min()
-                w = amp ** 2
-                mean = float(np.sum(w * delay) / np.sum(w))
-                spread[i, j, k] = math.sqrt(max(0.0, float(np.sum(w * (delay - mean) ** 2) / np.sum(w))))
-                after = delay[None, :] > first[i, j, k] + offsets[:, None]
-                late[i, j, k] = (after * w[None, :]).sum(axis=1) / w.sum()
+                if n:
+                    rows.append((pos, n))
+                    cells.append((i, j, k))
+                    pos += 8 * n
+    if pos != len(data):
+        raise ValueError(f"a Bellhop .arr whose counts do not match its {len(data)} numbers")
+    if not rows:
+        return first, spread, late
+    starts = np.array([r for r, _ in rows])
+    ns = np.array([n for _, n in rows])
+    idx = np.repeat(starts, ns) + 8 * (np.arange(ns.sum()) - np.repeat(np.cumsum(ns) - ns, ns))
+    a = data[idx[:, None] + np.arange(8)]         # every arrival row, cell after cell
+    cell = np.repeat(np.arange(len(rows)), ns)
+    seg = np.cumsum(ns) - ns                      # each cell's first row in `a`
+    amp, delay = np.abs(a[:, 0]) * np.exp(omega * a[:, 3]), a[:, 2]
+    top = np.maximum.reduceat(amp, seg)
+    some = top > 0.0                              # every path attenuated to nothing: no arrival
+    strong = amp >= (top * 10 ** (-window_db / 20))[cell]
+    f = np.minimum.reduceat(np.where(strong, delay, np.inf), seg)
+    w = amp ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        total = np.add.reduceat(w, seg)
+        mean = np.add.reduceat(w * delay, seg) / total
+        sp = np.sqrt(np.maximum(0.0, np.add.reduceat(w * (delay - mean[cell]) ** 2, seg) / total))
+        lt = np.stack([np.add.reduceat(w * (delay > f[cell] + off), seg) / total for off in LATE_S], axis=-1)
+    ci, cj, ck = (np.array(x)[some] for x in zip(*cells, strict=True))
+    first[ci, cj, ck] = f[some]
+    spread[ci, cj, ck] = sp[some]
+    late[ci, cj, ck] = lt[some]
     return first, spread, late
 
 
