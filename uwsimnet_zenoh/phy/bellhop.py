@@ -144,9 +144,9 @@ def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.nd
     omega = 2.0 * math.pi * float(tok[1])
     counts = []
     for _ in range(3):                            # the source depths, receiver depths, ranges: a count, values
-        n = int(next(head).group())
+        m = next(head)
+        n, end = int(m.group()), m.end()
         counts.append(n)
-        end = 0
         for _, m in zip(range(n), head, strict=False):
             end = m.end()
     nsd, nrd, nrr = counts
