@@ -144,7 +144,9 @@ def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.nd
     omega = 2.0 * math.pi * float(tok[1])
     counts = []
     for _ in range(3):                            # the source depths, receiver depths, ranges: a count, values
-        m = next(head)
+        m = next(head, None)
+        if m is None:
+            raise ValueError("a Bellhop .arr cut short in its header")
         n, end = int(m.group()), m.end()
         counts.append(n)
         for _, m in zip(range(n), head, strict=False):
