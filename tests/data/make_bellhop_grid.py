@@ -1,6 +1,6 @@
 """Make the Bellhop grid that tests/test_bellhop.py uses without Bellhop: the grid of
 tests/data/ocean-shadow.xml's channel model, computed by the real program (`make bellhop`) through the model's
-own code path, written to tests/data/bellhop/<content hash>.npz.
+own code path, written to tests/data/bellhop/<content hash>-<Bellhop build tag>.npz.
 
     UWSIMNET_CACHE=tests/data .venv/bin/python tests/data/make_bellhop_grid.py
 """

@@ -1,6 +1,7 @@
 """The channel model "bellhop" (docs/ocean.md): ray-traced transmission loss and first arrivals from Bellhop
 (Porter's Acoustics Toolbox; GPL-3, so it is run as a program and never imported or shipped), computed once on
-a grid per (environment, frequency, source depths), cached on disk by content hash, interpolated per frame.
+a grid per (environment, frequency, source depths), cached on disk by content hash and Bellhop build
+(`program_tag`), interpolated per frame.
 
 Per receiver: horizontal range r and the two depths -> TL (incoherent, Bellhop run type 'I') and the first
 significant arrival (run type 'A': the earliest arrival within 20 dB of the strongest) by trilinear
@@ -26,23 +27,25 @@ import hashlib
 import logging
 import math
 import os
+import re
 import shutil
 import struct
 import subprocess
 import tempfile
 from bisect import bisect_right
 from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .acoustic import _BER_SCALAR, AcousticLink
+from .acoustic import _BER_SCALAR, MODULATIONS, AcousticLink
 from .models import Answer, ChannelModel, ModelContext, Query
 from .ocean import doppler_factor
 
 log = logging.getLogger("uwsimnet.bellhop")
-GRID_VERSION = "uwsimnet-bellhop-grid-3"
+GRID_VERSION = "uwsimnet-bellhop-grid-4"
 LATE_S = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1)
 """Delays after the first arrival (s) at which the grid keeps the fraction of arrival energy still to come."""
 HOWTO = ("Bellhop not found: run `make bellhop` (installs the aubellhop wheel's binary into .tools/bellhop),"
@@ -60,6 +63,22 @@ def find_program(explicit: str | None = None) -> str | None:
     root = Path(__file__).resolve().parents[2] / ".tools" / "bellhop"
     found = sorted(root.glob("lib/python3*/site-packages/aubellhop/bin/bellhop.exe"))
     return str(found[0]) if found else None
+
+
+def program_tag(program: str) -> str:
+    """The Bellhop build in a grid's cache name: the first 12 hex digits of the SHA-256 of the program's bytes
+    (a new Bellhop, even of the same version number, computes its own grids); kept per (path, size, mtime)."""
+    st = os.stat(program)
+    return _tag(os.path.realpath(program), st.st_size, st.st_mtime_ns)
+
+
+@lru_cache(maxsize=8)
+def _tag(path: str, _size: int, _mtime_ns: int) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            h.update(chunk)
+    return h.hexdigest()[:12]
 
 
 def env_text(freq_hz: float, profile: list[tuple[float, float]], bottom_m: float, seabed: tuple[float, float, float],
@@ -114,39 +133,67 @@ def _rr_is_double(data: bytes, rec: int, nrr: int) -> bool:
 def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per (source depth, receiver depth, range) of a Bellhop ascii .arr file ('2D'): the first significant
     arrival (earliest within `window_db` of the strongest; nan: none), the rms delay spread (s), and the
-    fraction of the arrivals' energy (sum |A|^2) that comes later than first + each of LATE_S."""
-    tok = text.split()
-    if not tok or "2D" not in tok[0]:
+    fraction of the arrivals' energy (sum |A|^2) that comes later than first + each of LATE_S.
+    Each arrival's amplitude is |A| exp(omega Im(tau)): Bellhop leaves the volume attenuation (top option 'T')
+    out of the amplitude column and writes it as the delay's imaginary part (aubellhop's readers.py builds
+    the complex amplitude A exp(-i(phase + omega tau)) from the same columns)."""
+    head = re.finditer(r"\S+", text)
+    tok = [m.group() for _, m in zip(range(2), head, strict=False)]    # range first: zip stops before head
+    if len(tok) < 2 or "2D" not in tok[0]:
         raise ValueError("not a 2D Bellhop arrivals file")
-    pos = 2                                       # '2D', freq
+    omega = 2.0 * math.pi * float(tok[1])
     counts = []
-    for _ in range(3):
-        n = int(tok[pos])
+    for _ in range(3):                            # the source depths, receiver depths, ranges: a count, values
+        m = next(head, None)
+        if m is None:
+            raise ValueError("a Bellhop .arr cut short in its header")
+        n, end = int(m.group()), m.end()
         counts.append(n)
-        pos += 1 + n
+        for _, m in zip(range(n), head, strict=False):
+            end = m.end()
     nsd, nrd, nrr = counts
+    data = np.fromstring(text[end:], sep=" ")    # the rest is numbers: counts and 8-column arrival rows
     first = np.full((nsd, nrd, nrr), np.nan)
     spread = np.full((nsd, nrd, nrr), np.nan)
     late = np.zeros((nsd, nrd, nrr, len(LATE_S)))
-    offsets = np.array(LATE_S)
+    rows, cells = [], []                          # where each cell's rows start in `data`, and its index
+    pos = 0
+    counts_at = data.tolist()
     for i in range(nsd):
         pos += 1                                  # the source's largest count
         for j in range(nrd):
             for k in range(nrr):
-                n = int(tok[pos])
+                n = int(counts_at[pos]) if pos < len(counts_at) else -1
                 pos += 1
-                if n == 0:
-                    continue
-                a = np.array(tok[pos:pos + 8 * n], dtype=float).reshape(n, 8)
-                pos += 8 * n
-                amp, delay = np.abs(a[:, 0]), a[:, 2]
-                strong = amp >= amp.max() * 10 ** (-window_db / 20)
-                first[i, j, k] = delay[strong].min()
-                w = amp ** 2
-                mean = float(np.sum(w * delay) / np.sum(w))
-                spread[i, j, k] = math.sqrt(max(0.0, float(np.sum(w * (delay - mean) ** 2) / np.sum(w))))
-                after = delay[None, :] > first[i, j, k] + offsets[:, None]
-                late[i, j, k] = (after * w[None, :]).sum(axis=1) / w.sum()
+                if n:
+                    rows.append((pos, n))
+                    cells.append((i, j, k))
+                    pos += 8 * n
+    if pos != len(data):
+        raise ValueError(f"a Bellhop .arr whose counts do not match its {len(data)} numbers")
+    if not rows:
+        return first, spread, late
+    starts = np.array([r for r, _ in rows])
+    ns = np.array([n for _, n in rows])
+    idx = np.repeat(starts, ns) + 8 * (np.arange(ns.sum()) - np.repeat(np.cumsum(ns) - ns, ns))
+    a = data[idx[:, None] + np.arange(8)]         # every arrival row, cell after cell
+    cell = np.repeat(np.arange(len(rows)), ns)
+    seg = np.cumsum(ns) - ns                      # each cell's first row in `a`
+    amp, delay = np.abs(a[:, 0]) * np.exp(omega * a[:, 3]), a[:, 2]
+    top = np.maximum.reduceat(amp, seg)
+    some = top > 0.0                              # every path attenuated to nothing: no arrival
+    strong = amp >= (top * 10 ** (-window_db / 20))[cell]
+    f = np.minimum.reduceat(np.where(strong, delay, np.inf), seg)
+    w = amp ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        total = np.add.reduceat(w, seg)
+        mean = np.add.reduceat(w * delay, seg) / total
+        sp = np.sqrt(np.maximum(0.0, np.add.reduceat(w * (delay - mean[cell]) ** 2, seg) / total))
+        lt = np.stack([np.add.reduceat(w * (delay > f[cell] + off), seg) / total for off in LATE_S], axis=-1)
+    ci, cj, ck = (np.array(x)[some] for x in zip(*cells, strict=True))
+    first[ci, cj, ck] = f[some]
+    spread[ci, cj, ck] = sp[some]
+    late[ci, cj, ck] = lt[some]
     return first, spread, late
 
 
@@ -213,28 +260,39 @@ def _trilinear(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarray, q0
     return out
 
 
-def run_bellhop(program: str, env: str, want: str, workdir: str) -> bytes:
-    """Run Bellhop on one .env text in `workdir`; the bytes of its output file `want` ('shd' or 'arr')."""
+def run_bellhop(program: str, env: str, want: str, workdir: str, timeout: float = 3600.0) -> bytes:
+    """Run Bellhop on one .env text in `workdir`; the bytes of its output file `want` ('shd' or 'arr').
+    Every failure is one line (ValueError): the end of Bellhop's .prt, a timeout, a program that cannot run."""
     base = os.path.join(workdir, "run")
     Path(base + ".env").write_text(env)
-    done = subprocess.run([program, base], cwd=workdir, capture_output=True, text=True, timeout=3600)
+    try:
+        done = subprocess.run([program, base], cwd=workdir, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise ValueError(f"Bellhop ({program}) ran over its timeout of {timeout:g} s (parameter <timeout>)") from None
+    except OSError as e:
+        raise ValueError(f"Bellhop ({program}) cannot run: {e.strerror or e}") from None
     out = Path(f"{base}.{want}")
     if done.returncode != 0 or not out.exists():
         prt = Path(base + ".prt")
         tail = prt.read_text(errors="replace").strip().splitlines()[-3:] if prt.exists() else [done.stderr.strip()]
+        if not any(tail):
+            tail = [f"exit status {done.returncode}, no .{want} and no .prt written"]
         raise ValueError(f"Bellhop failed ({program}): {' | '.join(tail)}")
     return out.read_bytes()
 
 
 def compute_grid(program: str, freq_hz: float, profile: list[tuple[float, float]], bottom_m: float,
                  seabed: tuple[float, float, float], sds: list[float], rds: list[float], rrs_m: list[float],
-                 workers: int = 2) -> Grid:
-    """The grid from Bellhop: one TL run ('I') and one arrivals run ('A') per source depth, in parallel."""
+                 workers: int = 2, timeout: float = 3600.0) -> Grid:
+    """The grid from Bellhop: one TL run ('I') and one arrivals run ('A') per source depth, in parallel
+    (`timeout`: seconds per run)."""
     def one(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         with tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d1, \
                 tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d2:
-            shd = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "I"), "shd", d1)
-            arr = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "A"), "arr", d2)
+            shd = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "I"), "shd", d1,
+                              timeout)
+            arr = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "A"), "arr", d2,
+                              timeout)
         _, _, _, p = read_shd(shd)
         with np.errstate(divide="ignore"):
             tl = -20.0 * np.log10(np.abs(p[0]))
@@ -264,7 +322,7 @@ class BellhopModel(ChannelModel):
     """Ray-traced acoustics for an AcousticCommsDevice in the scene's <environment> (module docstring)."""
 
     family = "bellhop"
-    params_known = ("program", "workers", "isi")
+    params_known = ("program", "workers", "isi", "timeout")
     """Read only when the grid is not cached yet."""
 
     def __init__(self, params: Any, ctx: ModelContext) -> None:
@@ -299,28 +357,29 @@ class BellhopModel(ChannelModel):
         seabed = (env.seabed_speed_mps, env.seabed_density, env.seabed_attenuation)
         key = hashlib.sha256(repr((GRID_VERSION, self.freq_hz, profile, bottom, seabed, sds, rds, rrs)).encode())
         where = Path(params.get("cache", "") or cache_dir())
-        self.path = where / f"{key.hexdigest()[:32]}.npz"
+        program = find_program(params.get("program"))       # the cache name is <content>-<program_tag>.npz;
+        stem = key.hexdigest()[:32]                          # without the program, any Bellhop's grid serves
+        found = sorted(where.glob(f"{stem}*.npz")) if program is None else []     # (untagged: before tags)
+        self.path = found[-1] if found else where / f"{stem}-{program_tag(program) if program else 'none'}.npz"
         if self.path.exists():
-            self.grid = Grid.load(self.path)
+            self.grid = _load(str(self.path), self.path.stat().st_mtime_ns)
             self._tables()
             return
-        program = find_program(params.get("program"))
         if program is None:
             raise ValueError(HOWTO)
+        timeout = float(params.get("timeout", "3600"))
+        if not timeout > 0:
+            raise ValueError("timeout must be > 0 (seconds per Bellhop run)")
         self.grid = compute_grid(program, self.freq_hz, profile, bottom, seabed, sds, rds, rrs,
-                                 workers=int(params.get("workers", str(os.cpu_count() or 1))))
+                                 workers=int(params.get("workers", str(os.cpu_count() or 1))), timeout=timeout)
         where.mkdir(parents=True, exist_ok=True)
         self.grid.save(self.path)
         self._tables()
 
     def _tables(self) -> None:
-        """The grid as Python lists for the per-frame path (a few receivers: math beats numpy's call cost)."""
-        g = self.grid
-        late = g.late_fraction(np.repeat(g.sd, len(g.rd) * len(g.rr)), np.tile(np.repeat(g.rd, len(g.rr)), len(g.sd)),
-                               np.tile(g.rr, len(g.sd) * len(g.rd)), self.bit_s).reshape(g.tl.shape)
-        self._axes = (g.sd.tolist(), g.rd.tolist(), g.rr.tolist())
-        self._tl, self._dl = g.tl.tolist(), g.delay.tolist()
-        self._late = late.tolist() if self.isi else np.zeros_like(late).tolist()
+        """The grid as Python lists for the per-frame path (a few receivers: math beats numpy's call cost) and
+        as one stacked array for the numpy path; shared by the models of one grid, bit rate and ISI setting."""
+        self._axes, self._tl, self._dl, self._late, self._stack = _prepared(self.grid, self.bit_s, self.isi)
 
     def _point(self, zs: float, zr: float, r: float) -> tuple[float, float, float]:
         """TL, delay and late fraction at one geometry (trilinear, depths held at the grid's ends; nan beyond
@@ -345,9 +404,12 @@ class BellhopModel(ChannelModel):
         return self._point(zs, zr, math.hypot(p[0] - tx.position[0], p[1] - tx.position[1]))
 
     def answer(self, q: Query) -> Answer:
+        if len(q.slots) > MANY:
+            return self._answer_many(q)
         tx = q.sender
         zs0 = -tx.position[2]
         off_s = min(abs(zs0 - s) for s in self._axes[0])
+        tx_moving = tx.velocity != (0.0, 0.0, 0.0)
         per: list[float] = []
         delays: list[float] = []
         levels: list[float] = []
@@ -364,8 +426,11 @@ class BellhopModel(ChannelModel):
                         d = d2
                         break
                     d = d2
-            c = self.profile.mean_speed(max(0.0, zs0), max(0.0, -at[2]))
-            dopplers.append(doppler_factor(tx.position, at, tx.velocity, rx.velocity, c))
+            if moving or tx_moving:
+                c = self.profile.mean_speed(max(0.0, zs0), max(0.0, -at[2]))
+                dopplers.append(doppler_factor(tx.position, at, tx.velocity, rx.velocity, c))
+            else:
+                dopplers.append(1.0)                  # both ends still: the formula's value, exactly
             delays.append(d)
             levels.append(self.link.sl_db - t)
             if not math.isfinite(t) or not math.isfinite(d):
@@ -377,6 +442,123 @@ class BellhopModel(ChannelModel):
             b = self.ber(ebn0)
             per.append(1.0 if b >= 1.0 else -math.expm1(8.0 * q.size * math.log1p(-b)))
         return Answer(per, delays, levels, dopplers)
+
+    def _answer_many(self, q: Query) -> Answer:
+        """`answer` for many receivers: the same arithmetic on numpy arrays, one trilinear gather of the
+        stacked (TL, delay, late fraction) table per pass (numpy's call cost is paid per frame, not per
+        receiver); the moving receivers' fixed point and the Doppler factors as in `answer`."""
+        sender, rxs = q.sender, q.receivers
+        tx, txv = np.array(sender.position, dtype=float), np.array(sender.velocity, dtype=float)
+        p = np.array([r.position for r in rxs], dtype=float)
+        vel = np.array([r.velocity for r in rxs], dtype=float)
+        off_s = float(np.abs(-tx[2] - self.grid.sd).min())
+        tl, delay, f = self._at_many(tx, p, off_s)
+        at = p.copy()
+        active = vel.any(axis=1) & np.isfinite(delay)        # motion during flight, as `answer` (3 passes)
+        for _ in range(3):
+            idx = np.flatnonzero(active)
+            if not len(idx):
+                break
+            at[idx] = p[idx] + vel[idx] * delay[idx, None]
+            tl[idx], d2, f[idx] = self._at_many(tx, at[idx], off_s)
+            active[idx[~np.isfinite(d2) | (np.abs(d2 - delay[idx]) < 1e-12)]] = False
+            delay[idx] = d2
+        if txv.any() or vel.any():
+            zs0 = max(0.0, -float(tx[2]))
+            c = mean_speeds(self.profile, zs0, np.maximum(0.0, -at[:, 2]))
+            d = at - tx
+            n = np.sqrt((d * d).sum(axis=1))
+            u = d / np.where(n == 0.0, 1.0, n)[:, None]
+            doppler = np.where(n == 0.0, 1.0, (c - (vel * u).sum(axis=1)) / (c - (txv * u).sum(axis=1))).tolist()
+        else:
+            doppler = [1.0] * len(rxs)                        # still water, still ends: exactly 1
+        f = np.clip(f, 0.0, 1.0)
+        ok = np.isfinite(tl) & np.isfinite(delay)
+        with np.errstate(invalid="ignore", over="ignore"):
+            snr = 10.0 ** (0.1 * np.minimum(self.snr_const - np.where(ok, tl, 0.0), 3000.0))
+            ebn0 = (1.0 - f) * snr / (1.0 + f * snr) * self.to_ebn0     # ISI: energy a bit late is interference
+            b = np.minimum(np.asarray(MODULATIONS[self.link.modem.modulation](ebn0), dtype=float), 1.0)
+            per = np.where(ok & (b < 1.0), -np.expm1(8.0 * q.size * np.log1p(-np.where(b < 1.0, b, 0.0))), 1.0)
+        return Answer(per.tolist(), delay.tolist(), (self.link.sl_db - tl).tolist(), doppler)
+
+    def _at_many(self, tx: np.ndarray, p: np.ndarray, off_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_at` for receivers at positions p (n, 3): TL, delay, late fraction (nan, nan, 0 beyond the ranges)."""
+        sd = self.grid.sd
+        zs = np.full(len(p), -tx[2])
+        zr = -p[:, 2]
+        r = np.hypot(p[:, 0] - tx[0], p[:, 1] - tx[1])
+        swap = off_s > np.abs(zr[:, None] - sd).min(axis=1)          # reciprocity, as `_at`
+        zs, zr = np.where(swap, zr, zs), np.where(swap, zs, zr)
+        v = _trilinear_stack(sd, self.grid.rd, self.grid.rr, self._stack, zs, zr, r)
+        v[(r < self.grid.rr[0]) | (r > self.grid.rr[-1])] = (math.nan, math.nan, 0.0)
+        return v[:, 0], v[:, 1], v[:, 2]
+
+
+@lru_cache(maxsize=16)
+def _load(path: str, _mtime_ns: int) -> Grid:
+    """A cached grid, loaded once per process (every transmitting device of a scene builds its own model of
+    the same grid: 257 loads took 1.6 s of a 256-sensor run's start); read-only once loaded."""
+    return Grid.load(path)
+
+
+@lru_cache(maxsize=32)
+def _prepared(g: Grid, bit_s: float, isi: bool) -> tuple[Any, list, list, list, np.ndarray]:
+    """`BellhopModel._tables` of a grid: axes, TL, delay and late-fraction lists, the stacked array."""
+    late = g.late_fraction(np.repeat(g.sd, len(g.rd) * len(g.rr)), np.tile(np.repeat(g.rd, len(g.rr)), len(g.sd)),
+                           np.tile(g.rr, len(g.sd) * len(g.rd)), bit_s).reshape(g.tl.shape)
+    if not isi:
+        late = np.zeros_like(late)
+    return ((g.sd.tolist(), g.rd.tolist(), g.rr.tolist()), g.tl.tolist(), g.delay.tolist(), late.tolist(),
+            np.stack([g.tl, g.delay, late], axis=-1))
+
+
+def mean_speeds(profile: Any, z0: float, z: np.ndarray) -> np.ndarray:
+    """`SoundSpeedProfile.mean_speed(z0, z)` for an array of depths z: the harmonic mean of c between z0 and
+    each z, (b - a) / (S(b) - S(a)) with S the travel time down from the profile's first depth (c linear
+    between the points, held beyond them: the integral of 1/c over a linear piece is ln(c1/c0) / gradient)."""
+    ds, cs = np.array(profile.depths, dtype=float), np.array(profile.speeds, dtype=float)
+    z = np.asarray(z, dtype=float)
+    if len(ds) == 1:
+        return np.full(len(z), cs[0])
+
+    def slowness(x: np.ndarray) -> np.ndarray:
+        dd, dc = np.diff(ds), np.diff(cs)
+        flat = np.abs(dc) < 1e-12
+        seg = np.where(flat, dd / cs[:-1], dd * np.log(cs[1:] / cs[:-1]) / np.where(flat, 1.0, dc))
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        xc = np.clip(x, ds[0], ds[-1])
+        i = np.clip(np.searchsorted(ds, xc, side="right") - 1, 0, len(ds) - 2)
+        c0 = cs[i]
+        c1 = c0 + (xc - ds[i]) / dd[i] * dc[i]
+        h = xc - ds[i]
+        piece = np.where(np.abs(c1 - c0) < 1e-12, h / c0, h * np.log(c1 / c0) / np.where(np.abs(c1 - c0) < 1e-12,
+                                                                                         1.0, c1 - c0))
+        return cum[i] + piece + np.maximum(x - ds[-1], 0.0) / cs[-1] - np.maximum(ds[0] - x, 0.0) / cs[0]
+
+    a, b = np.minimum(z0, z), np.maximum(z0, z)
+    same = b - a < 1e-9
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = (b - a) / (slowness(b) - slowness(a))
+    return np.where(same, np.interp(a, ds, cs), out)
+
+
+MANY = 24
+"""Receivers above which `answer` goes to numpy (bench/bench_bellhop.py: below it, Python floats are faster)."""
+
+
+def _trilinear_stack(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarray, q0: np.ndarray,
+                     q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """`_trilinear` of every last-axis column of v at once: (n, v.shape[-1])."""
+    (i, f), (j, g), (k, h) = _axis(a0, q0), _axis(a1, q1), _axis(a2, q2)
+    i1 = np.minimum(i + 1, len(a0) - 1)
+    j1 = np.minimum(j + 1, len(a1) - 1)
+    k1 = np.minimum(k + 1, len(a2) - 1)
+    out = np.zeros((len(q0), v.shape[-1]))
+    for ii, wi in ((i, 1 - f), (i1, f)):
+        for jj, wj in ((j, 1 - g), (j1, g)):
+            for kk, wk in ((k, 1 - h), (k1, h)):
+                out += (wi * wj * wk)[:, None] * v[ii, jj, kk]
+    return out
 
 
 def _locate(ax: list[float], q: float) -> tuple[int, int, float]:
