@@ -14,6 +14,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from uwsimnet_zenoh.engine.network import Network
@@ -167,3 +168,31 @@ def test_a_moving_receiver_gets_the_delay_where_the_sound_reaches_it(monkeypatch
     c = model.profile.mean_speed(10.0, 100.0)
     u = (1000.0 + 4.0 * d) / math.hypot(1000.0 + 4.0 * d, 90.0)
     assert abs(moving.doppler[0] - (c - 4.0 * u) / c) < 1e-12 and still.doppler[0] == 1.0
+
+
+def test_delay_spread_loss_is_opt_in_and_follows_its_formula(monkeypatch):
+    """<isi>on</isi>: Eb/N0 = (1 - f) SNR / (1 + f SNR) · B/R, f the grid's energy fraction later than one bit;
+    off (the default): f = 0.  A value other than on/off is refused in one line."""
+    monkeypatch.setenv("UWSIMNET_CACHE", str(DATA))
+    monkeypatch.setenv("UWSIMNET_BELLHOP", "/nonexistent/bellhop")
+    text = SCENE.read_text()
+    models = {}
+    for isi in ("off", "on"):
+        net = Network(load_scene_text(text.replace("<name>bellhop</name>", f"<name>bellhop</name><isi>{isi}</isi>"),
+                                      str(SCENE)))
+        models[isi] = net.modems["buoy-modem"].error
+    assert not Network(load_scene_text(text, str(SCENE))).modems["buoy-modem"].error.isi
+    off, on = models["off"], models["on"]
+    g = on.grid
+    zs_, zr_, r_ = np.meshgrid(g.sd, g.rd, g.rr, indexing="ij")
+    late = g.late_fraction(zs_.ravel(), zr_.ravel(), r_.ravel(), on.bit_s).reshape(g.tl.shape)
+    i, j, k = (int(x[0]) for x in np.nonzero((late > 0.01) & (late < 0.99) & np.isfinite(g.tl)))
+    zs, zr, r = float(g.sd[i]), float(g.rd[j]), float(g.rr[k])
+    tl, _, f_on = on._point(zs, zr, r)
+    assert off._point(zs, zr, r)[2] == 0.0 and f_on == pytest.approx(float(late[i, j, k]), rel=1e-9)
+    snr = 10 ** (0.1 * (on.snr_const - tl))
+    want = (1 - f_on) * snr / (1 + f_on * snr) * on.to_ebn0
+    assert want < snr * on.to_ebn0
+    with pytest.raises(ValueError, match="isi must be on or off"):
+        Network(load_scene_text(text.replace("<name>bellhop</name>", "<name>bellhop</name><isi>yes</isi>"),
+                                str(SCENE)))

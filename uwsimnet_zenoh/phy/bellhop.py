@@ -7,7 +7,9 @@ Per receiver: horizontal range r and the two depths -> TL (incoherent, Bellhop r
 significant arrival (run type 'A': the earliest arrival within 20 dB of the strongest) by trilinear
 interpolation in (source depth, receiver depth, range); then, with the device's acoustic mode (its
 `AcousticLink`: SL, NL, DI, B/R, modulation), Eb/N0 = SL - TL - NL + DI + 10 log10(B/R) - implementation loss,
-BER by the modulation, PER = 1 - (1 - BER)^(8 L).  Delay spread as a loss (`<isi>off</isi>` to leave it out):
+BER by the modulation, PER = 1 - (1 - BER)^(8 L).  Delay spread as a loss, opt-in (`<isi>on</isi>`: off by
+default, since the modems users run equalise or spread their symbols and would otherwise look far worse than at
+sea):
 the fraction f of the arrivals' energy that comes more than one bit after the first arrival is interference,
 SINR = (1 - f) SNR / (1 + f SNR), and Eb/N0 = SINR B/R (less the implementation loss).  The arrival is the
 delay, taken where a moving receiver is when the sound reaches it (the grid's delay field solved for the
@@ -336,7 +338,10 @@ class BellhopModel(ChannelModel):
         self.snr_const = self.link.sl_db - self.link.nl_db + self.link.di_db      # SNR = this - TL, dB
         self.to_ebn0 = 10 ** (0.1 * (self.link.bw_gain_db - m.implementation_loss_db))   # B/R / impl. loss
         self.bit_s = 1.0 / float(m.bitrate_bps)
-        self.isi = params.get("isi", "on") != "off"
+        isi = params.get("isi", "off")
+        if isi not in ("on", "off"):
+            raise ValueError(f"isi must be on or off, not {isi!r}")
+        self.isi = isi == "on"
         self.ber = _BER_SCALAR[m.modulation]         # BER of linear Eb/N0, on floats
         bottom = float(env.seafloor().depth(0.0, 0.0))
         self.profile = env.sound_speed()
