@@ -62,9 +62,8 @@ class DcMac(Mac):
         super().__init__(ctx, params)
         self.master = number(self, "master", 1 if ctx.address == 0 else 0, minimum=0, integer=True) == 1
         self.max_nodes = number(self, "maxNodes", 4, minimum=1, integer=True)
-        if not self.master and not 1 <= ctx.address <= self.max_nodes:
-            raise ValueError(f"macProtocol dcmac: a slave's address is 1..maxNodes ({self.max_nodes}),"
-                             f" got {ctx.address}")
+        if not self.master and ctx.address < 1:
+            raise ValueError("macProtocol dcmac: a slave's address is 1 or more (its RTS slot is address - 1)")
         self.max_distance = max_distance(self)
         default = _ms(ctx.tx_time(RTS_CTS_BYTES) + ctx.tx_delay + ctx.max_prop_delay(self.max_distance)
                       + SLOT_ERROR_MS / 1000)
