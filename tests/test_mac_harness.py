@@ -179,9 +179,10 @@ def test_dcmac_slot_and_master_cycle_are_the_originals_formulas():
     sync = h.until_transmit()
     assert (h.now, sync.size, sync.dst, sync.info["type"]) == (0.0, 6, BROADCAST, "SYNC")
     h.tx_done()
-    # nobody asks: minEnd2End (floor(6*8/1000 s + 1 ms) = 49 ms) + 2 RTS slots, no data, 10 ms, next SYNC
+    # nobody asks: minEnd2End + 2 RTS slots, no data, 10 ms, next SYNC.  minEnd2End = (6*8 / 1000) [integer
+    # division: 0] * 1000 + 1 ms (DcMac.cpp:740-743), not the SYNC's 48 ms of airtime
     nxt = h.until_transmit()
-    assert nxt.info["type"] == "SYNC" and h.now == pytest.approx(0.049 + 2 * 0.202 + 0.010)
+    assert nxt.info["type"] == "SYNC" and h.now == pytest.approx(0.001 + 2 * 0.202 + 0.010)
 
 
 def test_dcmac_slave_rts_in_its_slot_data_on_cts_acked_by_the_next_sync():

@@ -5,7 +5,7 @@ the application process above a simulator with no MAC; here it runs in the modem
 rule (file:line); in short, one cycle of the master (address 0 unless `master` says otherwise):
 
     SYNC (6 B, broadcast, carries the ACK bits of the slaves' data the master got last cycle)
-    wait the SYNC's tx time + intrinsic delay, in whole ms
+    wait the intrinsic delay in whole ms (the SYNC's airtime is lost to an integer division)
     maxNodes RTS slots of `slot` each: slave k sends its RTS (7 B: data size, ACK bits) at (k-1)*slot
     CTS (7 B) to each requester, fewest bytes granted first; wait for its DATA or slot + its tx time
     the master's own DATA: the head of each destination's queue, back to back; 10 ms; next SYNC
@@ -183,7 +183,9 @@ class DcMac(Mac):
         ctx = self.ctx
         self._send(self._ctrl("SYNC", BROADCAST, acks=sorted(self._ack_mask)))
         self._req.clear()
-        wait = _ms(ctx.tx_time(SYNC_BYTES) + ctx.tx_delay)          # minEnd2End, whole ms (:741-743)
+        # minEnd2End (:740-743): (size * 8) / _devBitRate is an integer division (uint32), so whole seconds of
+        # airtime only (none above 48 bps), plus the intrinsic delay, in whole ms
+        wait = _ms(math.floor(ctx.tx_time(SYNC_BYTES) + 1e-12) + ctx.tx_delay)
         self._wait = ctx.timer(wait + self.max_nodes * self.slot, self._grant)
 
     def _master_rts(self, rts: Frame, info: dict) -> None:
