@@ -232,3 +232,29 @@ def test_dcmac_refuses_broadcast_frames():
     h.receive(ctrl(0, BROADCAST, type="SYNC", acks=[]))
     h.advance_by(1.0)
     assert ("drop", f, "broadcast") in [e[:3] for e in h.effects()]
+
+
+@pytest.mark.parametrize("aquasim, wait_slots", [("0", None), ("1", 1)])
+def test_sfama_ack_wait_ends_one_slot_after_the_coming_slot_start_with_aquasims_rule(aquasim, wait_slots):
+    """aqua-sim-mac-sfama.cc@0653634 StatusProcess :777-836: after the DATA's last bit, WAIT_RECV_ACK for
+    slotLen * 1 + GetTime2ComingSlot(now); ours (off): to the end of slot n+2+D."""
+    h = sfama(ackWaitAquasim=aquasim)
+    f = h.offer(dst=2, size=20)
+    h.until_transmit()
+    n = round(h.now / h.mac.slot)
+    d = h.mac.data_slots(f)
+    h.tx_done()
+    h.advance((n + 1.5) * h.mac.slot)
+    h.receive(Frame(2, 1, f.seq, RTS_CTS_HEADER, 0, kind="ctrl", info={"type": "CTS", "slots": d}))
+    h.until_transmit()
+    h.advance_by(20 * 8 / 1000)                               # the DATA's airtime (tx_delay 0)
+    h.tx_done()
+    last_bit = h.now
+    h.effects()
+    coming = math.ceil(last_bit / h.mac.slot) * h.mac.slot
+    end = coming + h.mac.slot if wait_slots else (n + 3 + d) * h.mac.slot
+    h.advance(end - 1e-6)
+    assert h.mac.state == "wait_ack"
+    h.advance(end + 1e-6)
+    assert h.mac.state != "wait_ack"                          # failed attempt: the ACK did not come
+
