@@ -130,3 +130,48 @@ def markdown(res: dict) -> str:
         lines += ["", f"Ratios CS-ALOHA / S-FAMA: RF {rf:.2f} (paper {62.5 / 27.5:.2f}), acoustic {ac:.2f}"
                   f" (paper {30 / 27.5:.2f})."]
     return "\n".join(lines) + "\n"
+
+
+# -- Table 1 under several sustain criteria, on a grid (issue #39.6) --------------------------------------
+CRITERIA = {"loose": (0.10, 60.0), "default": (TOLERANCE, MAX_DELAY), "strict": (0.01, 10.0)}
+"""name: (tolerance, max p95 delay s).  `default` is the bisection's; `strict` asks >= 99 % and p95 <= 10 s."""
+GRID_BPS = {("aloha", "RF"): range(40, 88, 4), ("sfama", "RF"): range(20, 40, 2),
+            ("aloha", "acoustic"): range(20, 48, 2), ("sfama", "acoustic"): range(20, 44, 2)}
+"""Payload B/s per flow of the group tried, every step: one run per rate and seed, read under every criterion."""
+
+
+def criteria_grid(seeds: list[int] | tuple[int, ...] = (1, 2, 3), profile: str = "default") -> dict:
+    """Per protocol, channel and seed: the probes of GRID_BPS, the highest rate each criterion sustains, and
+    whether sustainment is monotone in the rate (the bisection of `run` assumes it: a failing rate below a
+    sustained one is where it can go wrong)."""
+    from ..app.saturation import sustained
+    from ..scene.load import load_scene
+
+    res: dict = {"profile": profile, "seeds": list(seeds), "criteria": CRITERIA, "cells": {}}
+    for p in PROTOCOLS:
+        sc = load_scene(twinbot.scene_path(p), on_warning=lambda *_: None)
+        ov = twinbot.profile_overrides(p, profile)
+        for ch, (flow, together, _low) in GROUPS.items():
+            size = next(f.size for f in twinbot.FLOWS if f.name == flow)
+            cell: dict = {"seeds": {}}
+            for seed in seeds:
+                probes = [sustained(sc, flow, bps / size, seed, tolerance=1.0, max_delay=float("inf"), duration=None,
+                                    overrides=ov, together=dict.fromkeys(together, 1.0))
+                          for bps in GRID_BPS[(p, ch)]]
+                rows = [(bps, pr.throughput_ratio, pr.delay_p95) for bps, pr in zip(GRID_BPS[(p, ch)], probes,
+                                                                                     strict=True)]
+                per: dict = {}
+                for name, (tol, dmax) in CRITERIA.items():
+                    ok = [r is not None and r >= 1 - tol and d is not None and d <= dmax for _, r, d in rows]
+                    best = max((b for (b, _, _), o in zip(rows, ok, strict=True) if o), default=None)
+                    first_fail = next((b for (b, _, _), o in zip(rows, ok, strict=True) if not o), None)
+                    per[name] = {"max_Bps": best, "monotone": best is None or first_fail is None or first_fail > best}
+                cell["seeds"][seed] = {"probes": rows, "criteria": per}
+            for name in CRITERIA:
+                vals = [cell["seeds"][s]["criteria"][name]["max_Bps"] for s in seeds]
+                iv = mean_ci([v for v in vals if v is not None])
+                cell[name] = {"per_seed": vals, "mean": None if iv is None else iv.mean,
+                              "half": None if iv is None else iv.half,
+                              "monotone": all(cell["seeds"][s]["criteria"][name]["monotone"] for s in seeds)}
+            res["cells"][f"{p}/{ch}"] = cell
+    return res
