@@ -1,4 +1,4 @@
-"""Every scene instantiation the original's run scripts make (dccomms_examples, dcentelles; issue #39.2), made
+"""Every scene instantiation the original's run scripts make (dccomms_examples, dcentelles; issue #39.2): 42 here, made
 here as the scripts make it: their `sed` substitutions reproduced from reading them (cited per case), then
 loaded and run for a few simulated seconds, or refused with the original's own reason.  The scenes carry no
 licence, so they are read from a clone of the public repository (UWSIMNET_DCCOMMS_EXAMPLES: a git directory;
@@ -70,12 +70,21 @@ def dcmac_scene(name: str) -> str:
     return s.replace("propSpeedValue", "0.666")
 
 
+def mac_scene(name: str, proto: str) -> str:
+    """The same scripts' other branch (mac_twinbot.sh:278-287 at 3cfb74d; mac_performance.sh at 20da065-4003191
+    for ..._4slaves): `<name></name>` becomes the protocol, then `propSpeedValue` as above."""
+    s = show(TWINBOT_DCMAC, f"testing/scenes/{name}.xml").replace("<name></name>", f"<name>{proto}</name>")
+    return s.replace("propSpeedValue", "0.666")
+
+
 CASES = ([(f"perf/{sc}/{p}/{v}", lambda sc=sc, p=p, v=v: perf(sc, p, v))
           for sc in PERF for p in ("aloha", "sfama", "dcmac") for v in ("ac", "rf")]
          + [(f"twinbot/{p}", lambda p=p: twinbot(p)) for p in ("nomac", "dcmac", "aloha", "sfama")]
          + [(f"oceans19/{p}", lambda p=p: oceans19(p)) for p in ("mac", "nomac")]
          + [("netsim_twinbot_dcmac", lambda: dcmac_scene("netsim_twinbot_dcmac")),
-            ("netsim_twinbot_dcmac_4slaves", lambda: dcmac_scene("netsim_twinbot_dcmac_4slaves"))])
+            ("netsim_twinbot_dcmac_4slaves", lambda: dcmac_scene("netsim_twinbot_dcmac_4slaves"))]
+         + [(f"{n}/{p}", lambda n=n, p=p: mac_scene(n, p))
+            for n in ("netsim_twinbot_mac", "netsim_twinbot_mac_4slaves") for p in ("aloha", "sfama")])
 
 
 @pytest.mark.skipif(not REPO.exists(), reason="no clone of dcentelles/dccomms_examples (UWSIMNET_DCCOMMS_EXAMPLES)")
