@@ -1,5 +1,5 @@
-"""Every scene instantiation the original's run scripts make (dccomms_examples, dcentelles; issue #39.2): 42 here, made
-here as the scripts make it: their `sed` substitutions reproduced from reading them (cited per case), then
+"""Every scene instantiation the original's run scripts make (dccomms_examples, dcentelles; issue #39.2), 42 here,
+made as the scripts make them: their `sed` substitutions reproduced from reading them (cited per case), then
 loaded and run for a few simulated seconds, or refused with the original's own reason.  The scenes carry no
 licence, so they are read from a clone of the public repository (UWSIMNET_DCCOMMS_EXAMPLES: a git directory;
 skipped without one), never copied here."""
