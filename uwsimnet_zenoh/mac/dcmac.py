@@ -181,6 +181,7 @@ class DcMac(Mac):
         if self._closed:
             return
         ctx = self.ctx
+        self._cycle = []                                            # last cycle's sends have fired
         self._send(self._ctrl("SYNC", BROADCAST, acks=sorted(self._ack_mask)))
         self._req.clear()
         # minEnd2End (:740-743): (size * 8) / _devBitRate is an integer division (uint32), so whole seconds of
