@@ -48,7 +48,7 @@ def run(out: Path, seeds: list[int] | tuple[int, ...] = (1, 2, 3), progress: boo
         for ch, (flow, together, low) in GROUPS.items():
             s = saturate(sc, flow, seeds=seeds, tolerance=TOLERANCE, max_delay=MAX_DELAY, low=low,
                          steps=STEPS, together=together,
-                         overrides=original_overrides(p) if profile == "original" else None)
+                         overrides=twinbot.profile_overrides(p, profile) or None)
             bps = {k: v * s.size for k, v in s.per_seed.items()}
             iv = mean_ci(list(bps.values()))
             res["found"][p][ch] = {"flow": flow, "together": list(together), "per_seed_Bps": bps,
