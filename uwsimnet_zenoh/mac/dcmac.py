@@ -133,9 +133,10 @@ class DcMac(Mac):
         else:
             self.ctx.transmit(frame)
 
-    def _ctrl(self, kind: str, to: int, **info: object) -> Frame:
+    def _ctrl(self, kind: str, to: int, about: Frame | None = None, **info: object) -> Frame:
+        """A control frame; an RTS for our data is counted for its flow (efficiency), SYNC and CTS for none."""
         size = SYNC_BYTES if kind == "SYNC" else RTS_CTS_BYTES
-        return self.ctx.ctrl_frame(to, size, {"type": kind, **info})
+        return self.ctx.ctrl_frame(to, size, {"type": kind, **info}, about=about)
 
     def _take(self) -> Frame | None:
         """The FIFO head; a broadcast frame is refused (DcMac has no broadcast address)."""
@@ -269,7 +270,7 @@ class DcMac(Mac):
         size = rts_size_field(self.cur.size) if self.cur is not None and not self._waiting_ack else 0
         if size or acks:
             dst = self.cur.dst if size and self.cur is not None else 0
-            self._send(self._ctrl("RTS", dst, size=size, dst=dst, acks=acks))
+            self._send(self._ctrl("RTS", dst, self.cur if size else None, size=size, dst=dst, acks=acks))
 
     def _ack_lost(self) -> None:
         self._waiting_ack = False                                  # sent again from the next cycle on
