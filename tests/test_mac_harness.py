@@ -160,3 +160,101 @@ def test_the_example_in_docs_mac_md_runs():
     text = (Path(__file__).resolve().parent.parent / "docs" / "mac.md").read_text()
     block = text.split("### Testing your MAC", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
     exec(compile(block, "docs/mac.md", "exec"), {})  # noqa: S102 - our own documentation, not user input
+
+
+# -- DcMac (dccomms_examples src/DcMac.cpp at 3cfb74d; docs/mac.md "DcMac") ---------------------------
+def dcmac(address: int, **params: str) -> testing.Harness:
+    return testing.Harness("dcmac", {"maxDistance": "150", "maxNodes": "2", **params}, address=address,
+                           tx_delay=0.001, bitrate=1000.0)
+
+
+def ctrl(src: int, to: int, **info) -> Frame:
+    return Frame(src, to, -1, 7, 0, kind="ctrl", info=info)
+
+
+def test_dcmac_slot_and_master_cycle_are_the_originals_formulas():
+    h = dcmac(0)
+    # UpdateSlotDurFromEstimation (:448-461): 7-byte RTS at 1000 bps + 1 ms + 150 m / 1500 m/s + 45 ms, whole ms
+    assert h.mac.slot == pytest.approx(0.202)
+    sync = h.until_transmit()
+    assert (h.now, sync.size, sync.dst, sync.info["type"]) == (0.0, 6, BROADCAST, "SYNC")
+    h.tx_done()
+    # nobody asks: minEnd2End + 2 RTS slots, no data, 10 ms, next SYNC.  minEnd2End = (6*8 / 1000) [integer
+    # division: 0] * 1000 + 1 ms (DcMac.cpp:740-743), not the SYNC's 48 ms of airtime
+    nxt = h.until_transmit()
+    assert nxt.info["type"] == "SYNC" and h.now == pytest.approx(0.001 + 2 * 0.202 + 0.010)
+
+
+def test_dcmac_slave_rts_in_its_slot_data_on_cts_acked_by_the_next_sync():
+    h = dcmac(2)
+    f = h.offer(dst=0, size=21)
+    h.receive(ctrl(0, BROADCAST, type="SYNC", acks=[]))
+    t0 = h.now
+    rts = h.until_transmit()
+    assert rts.info["type"] == "RTS" and h.now - t0 == pytest.approx(0.202)      # (addr-1) * slot (:469)
+    assert rts.info["size"] == 22 and rts.size == 7          # the size field holds half, rounded up (:243)
+    h.tx_done()
+    h.receive(ctrl(0, 2, type="CTS", size=22))
+    assert h.effects()[-1] == ("transmit", f)
+    h.tx_done()
+    h.receive(ctrl(0, BROADCAST, type="SYNC", acks=[1]))     # not our bit: lost, asked for again
+    assert ("status", f, "acked") not in h.effects()
+    again = h.until_transmit()
+    assert again.info["type"] == "RTS" and again.info["size"] == 22
+    h.tx_done()
+    h.receive(ctrl(0, 2, type="CTS", size=22))
+    h.tx_done()
+    h.receive(ctrl(0, BROADCAST, type="SYNC", acks=[2]))
+    assert ("status", f, "acked") in h.effects()
+
+
+def test_dcmac_master_grants_the_fewest_bytes_first_and_acks_in_the_sync():
+    h = dcmac(0)
+    h.until_transmit()
+    h.tx_done()
+    h.receive(ctrl(1, 0, type="RTS", size=40, dst=0, acks=[]))
+    h.receive(ctrl(2, 0, type="RTS", size=10, dst=0, acks=[]))
+    cts = h.until_transmit()
+    assert cts.info["type"] == "CTS" and cts.dst == 1         # equal (zero) bytes granted: the lower slave
+    h.tx_done()
+    h.receive(h.from_peer(src=1, dst=0, size=40))             # its data ends the wait at once
+    cts2 = h.until_transmit()
+    assert cts2.dst == 2
+    h.tx_done()
+    h.advance_by(0.202 + 0.011 + 0.001)                       # slave 2 sends nothing: slot + its tx time, ceil ms
+    sync = h.until_transmit()
+    assert sync.info["type"] == "SYNC" and sync.info["acks"] == [1]
+
+
+def test_dcmac_refuses_broadcast_frames():
+    h = dcmac(1)
+    f = h.offer(dst=BROADCAST, size=10)
+    h.receive(ctrl(0, BROADCAST, type="SYNC", acks=[]))
+    h.advance_by(1.0)
+    assert ("drop", f, "broadcast") in [e[:3] for e in h.effects()]
+
+
+@pytest.mark.parametrize("aquasim, wait_slots", [("0", None), ("1", 1)])
+def test_sfama_ack_wait_ends_one_slot_after_the_coming_slot_start_with_aquasims_rule(aquasim, wait_slots):
+    """aqua-sim-mac-sfama.cc@0653634 StatusProcess :777-836: after the DATA's last bit, WAIT_RECV_ACK for
+    slotLen * 1 + GetTime2ComingSlot(now); ours (off): to the end of slot n+2+D."""
+    h = sfama(ackWaitAquasim=aquasim)
+    f = h.offer(dst=2, size=20)
+    h.until_transmit()
+    n = round(h.now / h.mac.slot)
+    d = h.mac.data_slots(f)
+    h.tx_done()
+    h.advance((n + 1.5) * h.mac.slot)
+    h.receive(Frame(2, 1, f.seq, RTS_CTS_HEADER, 0, kind="ctrl", info={"type": "CTS", "slots": d}))
+    h.until_transmit()
+    h.advance_by(20 * 8 / 1000)                               # the DATA's airtime (tx_delay 0)
+    h.tx_done()
+    last_bit = h.now
+    h.effects()
+    coming = math.ceil(last_bit / h.mac.slot) * h.mac.slot
+    end = coming + h.mac.slot if wait_slots else (n + 3 + d) * h.mac.slot
+    h.advance(end - 1e-6)
+    assert h.mac.state == "wait_ack"
+    h.advance(end + 1e-6)
+    assert h.mac.state != "wait_ack"                          # failed attempt: the ACK did not come
+

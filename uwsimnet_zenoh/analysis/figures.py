@@ -11,8 +11,9 @@ left out; a figure without any panel is not written.
 
 from __future__ import annotations
 
+import json
 from array import array
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -167,10 +168,22 @@ def _collect(path: str | PathLike[str]) -> _Collected:
     return c
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def _save(fig: Figure, path: Path, numbers: Mapping[str, object] | None = None) -> Path:
+    """Write a PNG; `numbers` (what the figure shows, as JSON) go in its text chunk `uwsimnet`, so a test can
+    check a committed figure against a new run by its numbers, not its pixels (`figure_numbers`)."""
     FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=DPI)
+    meta = {"uwsimnet": json.dumps(numbers, sort_keys=True)} if numbers is not None else None
+    fig.savefig(path, dpi=DPI, metadata=meta)
     return path
+
+
+def figure_numbers(path: str | PathLike[str]) -> dict:
+    """The numbers `_save` wrote into a PNG ({} if none)."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        raw = im.info.get("uwsimnet")
+    return json.loads(raw) if raw else {}
 
 
 def _xlim(c: _Collected) -> tuple[float, float]:
@@ -243,9 +256,14 @@ def fifo_bins(t: np.ndarray, f: np.ndarray, x0: float, x1: float, n: int = FIFO_
     return edges[:-1], mean, mx
 
 
-def _panel_fifo(ax: Axes, c: _Collected, x0: float = 0.0, x1: float | None = None) -> None:
+def _panel_fifo(ax: Axes, c: _Collected, x0: float = 0.0, x1: float | None = None,
+                capacity: float | None = None) -> None:
+    """Occupancy in bytes; with the FIFO's `capacity` the axis spans it (a dashed line at the top), so one
+    frame waiting reads as the small fraction of the FIFO it is, not as a full panel."""
+    peak = 0.0
     for i, (dev, s) in enumerate(sorted(c.fifo.items())):
         t, f = s.arrays()
+        peak = max(peak, float(f.max()) if len(f) else 0.0)
         colour = f"C{i}"
         if len(t) <= 2 * FIFO_BINS:
             ax.step(t, f, where="post", lw=1.0, alpha=0.8, color=colour, label=dev)
@@ -258,18 +276,26 @@ def _panel_fifo(ax: Axes, c: _Collected, x0: float = 0.0, x1: float | None = Non
         ax.step(np.append(b, b[-1] + step), np.append(mean, mean[-1]), where="post", lw=1.6, color=colour,
                 label=f"{dev}: mean per {step:.2g} s")
     ax.set_ylabel("tx FIFO (bytes)")
-    ax.set_title("occupancy of the transmission FIFO", fontsize=10, loc="left")
+    title = "occupancy of the transmission FIFO"
+    if capacity:
+        ax.axhline(capacity, ls="--", lw=1.0, color="grey", label=f"capacity {capacity:g} B")
+        ax.set_ylim(0, capacity * 1.08)
+        title += f" (at most {peak:g} of {capacity:g} B)"
+    ax.set_title(title, fontsize=10, loc="left")
     ax.grid(True, alpha=0.3)
     _legend(ax)
 
 
-def plot_trace(path: str | PathLike[str], out_dir: str | PathLike[str]) -> list[Path]:
+def plot_trace(path: str | PathLike[str], out_dir: str | PathLike[str], *,
+               delay_refs: Sequence[tuple[float, str]] = (), fifo_capacity: float | None = None) -> list[Path]:
     """Write `fig3-packets.png` and `fig4-delay.png` for a trace into `out_dir` (created if needed).
 
     Fig. 3: (a) transmitter-receiver distance over time per flow, one dot-row panel per flow (tx, rx,
     err(PROP|COL|MULT|RANGE), fifo drop, other drops), and the tx FIFO occupancy per transmitting device.
-    Fig. 4: end-to-end delay over time per flow.  Returns the files written (figures or panels without
-    data are skipped).
+    Fig. 4: end-to-end delay over time per flow, its peak marked, and `delay_refs` (value s, label: e.g. the
+    paper's figure where this run differs) as dashed lines.  `fifo_capacity` (bytes) scales the FIFO panel.
+    Returns the files written (figures or panels without data are skipped); each carries its numbers
+    (`figure_numbers`).
     """
     c = _collect(path)
     out = Path(out_dir)
@@ -286,7 +312,7 @@ def plot_trace(path: str | PathLike[str], out_dir: str | PathLike[str]) -> list[
         if c.dots.get(flow):
             panels.append((2.2 + 0.1 * len(ROWS), lambda ax, f=flow: _panel_flow(ax, c, f)))
     if c.fifo:
-        panels.append((2.4, lambda ax: _panel_fifo(ax, c, x0, x1)))
+        panels.append((2.4, lambda ax: _panel_fifo(ax, c, x0, x1, fifo_capacity)))
     if panels:
         fig = Figure(figsize=(12, 0.6 + sum(h for h, _ in panels)), layout="constrained")
         axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False,
@@ -297,7 +323,9 @@ def plot_trace(path: str | PathLike[str], out_dir: str | PathLike[str]) -> list[
             ax.set_xlim(x0, x1)
         axes[-1].set_xlabel("time (s)")
         fig.suptitle(f"Packet flows{suffix}", fontsize=12)
-        written.append(_save(fig, out / "fig3-packets.png"))
+        nums = {"rows": {f: {row: len(v) for row, v in sorted(c.dots.get(f, {}).items())} for f in c.flows},
+                "fifo_max_bytes": {d: float(s.arrays()[1].max()) for d, s in sorted(c.fifo.items()) if len(s)}}
+        written.append(_save(fig, out / "fig3-packets.png", nums))
 
     if any(len(s) for s in c.delay.values()):
         fig = Figure(figsize=(11, 4.5), layout="constrained")
@@ -308,13 +336,24 @@ def plot_trace(path: str | PathLike[str], out_dir: str | PathLike[str]) -> list[
                 continue
             t, d = s.arrays()
             ax.plot(t, d, marker="o", ms=3, lw=0.8, label=f"{flow} ({len(t)})", rasterized=True)
+        peaks = {f: s.arrays() for f, s in c.delay.items() if len(s)}
+        top_flow = max(peaks, key=lambda f: float(peaks[f][1].max()))
+        tt, dd = peaks[top_flow]
+        k = int(np.argmax(dd))
+        ax.annotate(f"peak {dd[k] * 1e3:.0f} ms", (tt[k], dd[k]), xytext=(8, -4), textcoords="offset points",
+                    fontsize=9)
+        for value, text in delay_refs:
+            ax.axhline(value, ls="--", lw=1.0, color="grey")
+            ax.annotate(text, (x0, value), xytext=(4, 3), textcoords="offset points", fontsize=8, color="dimgrey")
         ax.set_xlim(x0, x1)
         ax.set_xlabel("time of reception (s)")
         ax.set_ylabel("end-to-end delay (s)")
         ax.set_title(f"End-to-end delay{suffix}", fontsize=12)
         ax.grid(True, alpha=0.3)
         _legend(ax)
-        written.append(_save(fig, out / "fig4-delay.png"))
+        nums = {"received": {f: len(s) for f, s in sorted(c.delay.items())}, "peak_s": round(float(dd[k]), 6),
+                "refs": [[v, text] for v, text in delay_refs]}
+        written.append(_save(fig, out / "fig4-delay.png", nums))
     return written
 
 

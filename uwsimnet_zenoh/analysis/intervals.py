@@ -71,3 +71,19 @@ def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
     centre = (p + z * z / (2 * trials)) / den
     half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / den
     return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def ratio_ci(num: Sequence[float], den: Sequence[float]) -> Interval | None:
+    """The 95 % t interval of a ratio measured per seed (num[i] / den[i], paired: the same seed's runs)."""
+    if len(num) != len(den):
+        raise ValueError("ratio_ci: one value per seed on both sides")
+    return mean_ci([a / b for a, b in zip(num, den, strict=True) if b])
+
+
+def label(iv: Interval, paper: float) -> str:
+    """What a measurement over seeds says of the paper's value: `reproduced` when its interval holds the value,
+    `not` when it excludes it; a single run (no interval) says nothing (`one run`)."""
+    if iv.half is None:
+        return "one run"
+    assert iv.low is not None and iv.high is not None
+    return "reproduced" if iv.low <= paper <= iv.high else "not"

@@ -42,10 +42,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     ap.add_argument("--seeds", help="phy-layer: PER per distance bin over these seeds (Wilson intervals);"
                                     " twinbot: the three MACs over these seeds with 95 %% intervals;"
                                     " table1: the saturation search over these seeds (default 1-3)")
-    ap.add_argument("--profile", choices=("default", "original"), default="default",
+    ap.add_argument("--profile", choices=("default", "original", "original-ackwait"), default="default",
                     help="twinbot, table1: 'original' = the original experiment's set-up: framing and Aqua-Sim's"
                          " MAC header (+10 B on DATA, headerBytes), 500 B FIFO, no retry limit, unicast"
-                         " support/buoy, Aqua-Sim's S-FAMA rules (docs/paper-twinbot.md)")
+                         " support/buoy, Aqua-Sim's S-FAMA rules; 'original-ackwait': and its S-FAMA ACK wait"
+                         " (docs/paper-twinbot.md)")
     ap.add_argument("--traffic", choices=("paper", "control"), default=None,
                     help="hil-formation: 'paper' (default) = the control frames plus the Sec. 3.2 image flows, as the"
                          " paper states; 'control' = the control frames only (the lighter variant)")

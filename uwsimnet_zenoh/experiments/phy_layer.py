@@ -209,6 +209,48 @@ def reading_scene(variant: str, reading: str = DEFAULT_READING, extra: dict | No
     return apply(load_scene(SCENES / f"phy-layer-{variant}.xml"), {**READINGS[reading]["overrides"], **(extra or {})})
 
 
+def figure_kw(scene: Scene, variant: str, reading: str) -> dict:
+    """What plot_trace marks on this run's figures: the FIFO's capacity, and on the acoustic delay the paper's
+    ~430 ms beside why this run peaks lower (docs/paper-phy-layer.md)."""
+    dev = next(d for v in scene.vehicles for d in v.devices if d.dccomms_id.startswith("rov0"))
+    kw: dict = {"fifo_capacity": dev.tx_fifo_bytes}
+    if variant == "acoustic":
+        flow = next(f for f in scene.flows if f.name == FLOW)
+        on_air = flow.size + dev.header_bytes
+        kw["delay_refs"] = [(PAPER_PEAK_S, f"paper: ~430 ms; here {on_air} B frames at {dev.bitrate:g} bit/s"
+                                           f" ({on_air * 8 / dev.bitrate * 1e3:.0f} ms each): a frame waits at most"
+                                           " one of the other node's (docs/paper-phy-layer.md)")]
+    return kw
+
+
+DOC_FIGURES = {("stated", "rf", "fig3-packets.png"): "paper-phy-rf-fig3.png",
+               ("stated", "rf", "fig4-delay.png"): "paper-phy-rf-fig4.png",
+               ("stated", "acoustic", "fig4-delay.png"): "paper-phy-acoustic-fig4.png",
+               ("original-app", "acoustic", "fig4-delay.png"): "paper-phy-acoustic-fig4-original-app.png"}
+"""The phy-layer figures docs/ embeds: (reading, scene, figure) -> name in docs/figures."""
+
+
+def doc_figures(docs_dir: Path, work: Path) -> list[Path]:
+    """Draw the figures of DOC_FIGURES into `docs_dir` (runs in `work`): one command for what docs/ shows,
+    `python -m uwsimnet_zenoh.experiments.phy_layer docs/figures`."""
+    import shutil
+
+    from ..analysis.figures import plot_trace
+    from ..app.virtual import run_virtual
+
+    written = []
+    for reading, variant in sorted({(r, v) for r, v, _ in DOC_FIGURES}):
+        scene = reading_scene(variant, reading)
+        trace = work / f"{reading}-{variant}.trace.jsonl"
+        run_virtual(scene, seed=None, duration=None, trace_path=trace, progress=False)
+        drawn = plot_trace(trace, work / f"{reading}-{variant}", **figure_kw(scene, variant, reading))
+        figs = {p.name: p for p in drawn}
+        for (r, v, name), doc in DOC_FIGURES.items():
+            if (r, v) == (reading, variant):
+                written.append(Path(shutil.copyfile(figs[name], docs_dir / doc)))
+    return written
+
+
 def reading_row(name: str, scene: Scene) -> dict:
     """One reading of the acoustic run: its frame, load and delays, measured and from the formulas."""
     from ..app.api import run as run_one
@@ -256,7 +298,7 @@ def run(out: Path, progress: bool = True, seeds: list[int] | None = None, readin
         scene = reading_scene(variant, reading)
         trace = out / f"{variant}.trace.jsonl"
         run_virtual(scene, seed=None, duration=None, trace_path=trace, progress=progress)
-        figs = plot_trace(trace, out / variant)
+        figs = plot_trace(trace, out / variant, **figure_kw(scene, variant, reading))
         recs = _records(trace)
         summary[variant] = {"trace": str(trace), "figures": [str(f) for f in figs],
                             "flows": report_json(flow_metrics(trace)), "stages": phases(recs)}
@@ -335,3 +377,12 @@ def markdown(s: dict) -> str:
                      f" {r['fifo_max_frames']:.0f} | {r['fifo_drops']} |")
     lines.append("")
     return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for p in doc_figures(Path(sys.argv[1] if len(sys.argv) > 1 else "docs/figures"), Path(tmp)):
+            print(p)

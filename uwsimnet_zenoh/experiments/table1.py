@@ -48,7 +48,7 @@ def run(out: Path, seeds: list[int] | tuple[int, ...] = (1, 2, 3), progress: boo
         for ch, (flow, together, low) in GROUPS.items():
             s = saturate(sc, flow, seeds=seeds, tolerance=TOLERANCE, max_delay=MAX_DELAY, low=low,
                          steps=STEPS, together=together,
-                         overrides=original_overrides(p) if profile == "original" else None)
+                         overrides=twinbot.profile_overrides(p, profile) or None)
             bps = {k: v * s.size for k, v in s.per_seed.items()}
             iv = mean_ci(list(bps.values()))
             res["found"][p][ch] = {"flow": flow, "together": list(together), "per_seed_Bps": bps,
@@ -130,3 +130,54 @@ def markdown(res: dict) -> str:
         lines += ["", f"Ratios CS-ALOHA / S-FAMA: RF {rf:.2f} (paper {62.5 / 27.5:.2f}), acoustic {ac:.2f}"
                   f" (paper {30 / 27.5:.2f})."]
     return "\n".join(lines) + "\n"
+
+
+# -- Table 1 under several sustain criteria, on a grid (issue #39.6) --------------------------------------
+CRITERIA = {"loose": (0.10, 60.0), "default": (TOLERANCE, MAX_DELAY), "strict": (0.01, 10.0)}
+"""name: (tolerance, max p95 delay s).  `default` is the bisection's; `strict` asks >= 99 % and p95 <= 10 s."""
+GRID_BPS = {("aloha", "RF"): range(24, 88, 4), ("sfama", "RF"): range(14, 40, 2),
+            ("aloha", "acoustic"): range(4, 48, 2), ("sfama", "acoustic"): range(4, 44, 2)}
+"""Payload B/s per flow of the group tried, every step: one run per rate and seed, read under every criterion."""
+
+
+def read_grid(rows: list[tuple[float, float | None, float | None]], tolerance: float,
+              max_delay: float) -> tuple[float | None, bool]:
+    """(rate, delivered/offered, p95 delay) rows in increasing rate -> the highest rate sustained (None: none)
+    and whether sustainment is monotone (no failing rate below a sustained one)."""
+    ok = [r is not None and r >= 1 - tolerance and d is not None and d <= max_delay for _, r, d in rows]
+    best = max((b for (b, _, _), o in zip(rows, ok, strict=True) if o), default=None)
+    first_fail = next((b for (b, _, _), o in zip(rows, ok, strict=True) if not o), None)
+    return best, best is None or first_fail is None or first_fail > best
+
+
+def criteria_grid(seeds: list[int] | tuple[int, ...] = (1, 2, 3), profile: str = "default") -> dict:
+    """Per protocol, channel and seed: the probes of GRID_BPS, the highest rate each criterion sustains, and
+    whether sustainment is monotone in the rate (the bisection of `run` assumes it: a failing rate below a
+    sustained one is where it can go wrong)."""
+    from ..app.saturation import sustained
+    from ..scene.load import load_scene
+
+    res: dict = {"profile": profile, "seeds": list(seeds), "criteria": CRITERIA, "cells": {}}
+    for p in PROTOCOLS:
+        sc = load_scene(twinbot.scene_path(p), on_warning=lambda *_: None)
+        ov = twinbot.profile_overrides(p, profile)
+        for ch, (flow, together, _low) in GROUPS.items():
+            size = next(f.size for f in twinbot.FLOWS if f.name == flow)
+            cell: dict = {"seeds": {}}
+            for seed in seeds:
+                probes = [sustained(sc, flow, bps / size, seed, tolerance=1.0, max_delay=float("inf"), duration=None,
+                                    overrides=ov, together=dict.fromkeys(together, 1.0))
+                          for bps in GRID_BPS[(p, ch)]]
+                rows = [(bps, pr.throughput_ratio, pr.delay_p95) for bps, pr in zip(GRID_BPS[(p, ch)], probes,
+                                                                                     strict=True)]
+                per = {name: dict(zip(("max_Bps", "monotone"), read_grid(rows, tol, dmax), strict=True))
+                       for name, (tol, dmax) in CRITERIA.items()}
+                cell["seeds"][seed] = {"probes": rows, "criteria": per}
+            for name in CRITERIA:
+                vals = [cell["seeds"][s]["criteria"][name]["max_Bps"] for s in seeds]
+                iv = mean_ci([v for v in vals if v is not None])
+                cell[name] = {"per_seed": vals, "mean": None if iv is None else iv.mean,
+                              "half": None if iv is None else iv.half,
+                              "monotone": all(cell["seeds"][s]["criteria"][name]["monotone"] for s in seeds)}
+            res["cells"][f"{p}/{ch}"] = cell
+    return res

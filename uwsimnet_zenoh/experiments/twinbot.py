@@ -66,7 +66,7 @@ PAPER_TABLE1["nomac"] = PAPER_TABLE1["aloha"]   # "The data flows were configure
 PAPER_NOMAC_SUCCEEDED = ("support", "buoy", "E2")
 
 # -- profiles: the default set-up above, or the original experiment's (issue #16) -----------------------
-PROFILES = ("default", "original")
+PROFILES = ("default", "original", "original-ackwait")
 ORIGINAL_UNICAST = {"support": 1, "buoy": 10}
 """The original's support -> leader and buoy -> explorer0 flows (dccomms_examples testing/mac_twinbot.sh)."""
 AQUASIM_SFAMA = {"broadcast": "aquasim", "answerRtsInBackoff": "0", "overhearEndsRound": "1", "carrierSense": "0"}
@@ -79,10 +79,11 @@ def profile_overrides(protocol: str, profile: str = "default") -> dict[str, obje
     tx FIFO, support -> leader and buoy -> explorer0 unicast, DATA frames 5 B longer on air for the
     VariableLength2BPacket framing and, with a MAC, 5 B more for Aqua-Sim's MAC header (headerBytes 5 / 10);
     Aqua-Sim's control frames are its header only (ALOHA/S-FAMA ACK 5 B, RTS/CTS 7 B: they are made inside
-    ns-3, without the dccomms framing); no retry limit; Aqua-Sim's S-FAMA rules."""
+    ns-3, without the dccomms framing); no retry limit; Aqua-Sim's S-FAMA rules.  `original-ackwait`: the same
+    and Aqua-Sim's S-FAMA ACK wait (`ackWaitAquasim`), which makes every exchange past a distance fail."""
     if profile == "default":
         return {}
-    if profile != "original":
+    if profile not in PROFILES:
         raise ValueError(f"profile: expected one of {', '.join(PROFILES)}, got {profile!r}")
     ov: dict[str, object] = {"device.*.tx_fifo_bytes": 500,
                              **{f"flow.{n}.dst": a for n, a in ORIGINAL_UNICAST.items()}}
@@ -93,6 +94,8 @@ def profile_overrides(protocol: str, profile: str = "default") -> dict[str, obje
     if protocol == "sfama":
         ov.update({"device.*.mac.rtsSize": "7", "device.*.mac.ctsSize": "7",
                    **{f"device.*.mac.{k}": v for k, v in AQUASIM_SFAMA.items()}})
+        if profile == "original-ackwait":       # and Aqua-Sim's ACK wait (mac/sfama.py, docs/mac.md)
+            ov["device.*.mac.ackWaitAquasim"] = "1"
     return ov
 
 
@@ -260,7 +263,7 @@ DEVICES_PER_CHANNEL = {RF: 3, ACOUSTIC: 5}
 def receivers(flow: str, profile: str = "default") -> int:
     """Intended receivers of a flow: 1 for unicast, every other device on the channel for broadcast."""
     f = next(f for f in FLOWS if f.name == flow)
-    if profile == "original" and flow in ORIGINAL_UNICAST:
+    if profile.startswith("original") and flow in ORIGINAL_UNICAST:
         return 1
     return DEVICES_PER_CHANNEL[f.channel] - 1 if f.dst == 255 else 1
 

@@ -114,6 +114,9 @@ class CsAloha(OneFrameMac):
         self.ack_timeout = number(self, "ackTimeout", default_timeout, minimum=0.0)
         self._acks: list[Frame] = []        # ACKs waiting for our transmitter
         self._dedup = Dedup()
+        # the original's scripts (dccomms_examples testing/mac_performance.sh:292) fill <maxBackoffSlots> in
+        # every protocol's scene; its parser hands it to S-FAMA only and ALOHA runs without it: so here
+        params.get("maxBackoffSlots")
 
     default_carrier_sense = 1
 

@@ -35,6 +35,14 @@ off by default, and the `original` profile of the TWINBOT experiments turns all 
                              CTS or ACK not yet sent is not sent; a unicast DATA for us is accepted
                              (ACK, delivery) only within a round we answered
     carrierSense=0           no physical carrier sense at the RTS slot
+
+and a fifth, off in every profile unless asked (`twinbot --ack-wait aquasim`):
+
+    ackWaitAquasim=1         the ACK wait ends one slot after the first slot start at or after the DATA's
+                             last bit left (aqua-sim-mac-sfama.cc@0653634 DataSendTimerProcess :898-941 ->
+                             SlotInitHandler :1052 -> StatusProcess :777-836, slotnum 1), not at the end of
+                             slot n+2+D: when the DATA's end reaches the receiver past the next slot start,
+                             its ACK starts just as the wait ends, and every attempt fails
 """
 
 from __future__ import annotations
@@ -109,6 +117,7 @@ class SFama(OneFrameMac):
         self.answer_rts_in_backoff = flag(self, "answerRtsInBackoff", 1)
         self.overhear_ends_round = flag(self, "overhearEndsRound", 0)
         self.carrier_sense = flag(self, "carrierSense", 1)
+        self.ack_wait_aquasim = flag(self, "ackWaitAquasim", 0)
         self._ack_timer: Event | None = None   # our ACK waiting for its slot (overhearEndsRound cancels it)
         self.nav = 0.0                       # no RTS of ours, and no CTS answered, before this time
         self._n = 0                          # slot index of our current RTS
@@ -152,6 +161,8 @@ class SFama(OneFrameMac):
             self._done()
         else:
             self.state = WAIT_ACK
+            if self.ack_wait_aquasim:       # StatusProcess: 1 slot after the coming slot start (module docstring)
+                end = (math.ceil(ctx.now / self.slot - EPS) + 1) * self.slot
             self._timer = self._at(end, self._fail)
 
     def on_rx(self, frame: Frame) -> None:

@@ -218,6 +218,10 @@ class LegacyVocabulary(XmlReader):
             f.set("mac", self.mac(e), "macProtocol", e)
         if (e := k.get("disable")) is not None:
             self.integer(e)   # 0 here (non-zero returned early above)
+        if f.values.get("tx_framing") == "DcMacPacketBuilder" and f.values.get("mac", MacSpec()).name in ("none", ""):
+            # the original ran DcMac in its apps above a simulator with no MAC (dccomms_examples example4 --dcmac,
+            # testing/mac_twinbot.sh): here the modem runs it (docs/mac.md, DcMac)
+            f.values["mac"] = MacSpec(name="dcmac")
         return self.build(Device, el, f), els
 
     def modem_fields(self, k: _Kids, f: _Fields) -> None:
