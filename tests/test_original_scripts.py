@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from uwsimnet_zenoh.engine.network import Network
-from uwsimnet_zenoh.scene.load import SceneError, load_scene_text
+from uwsimnet_zenoh.scene.load import load_scene_text
 
 REPO = Path(os.environ.get("UWSIMNET_DCCOMMS_EXAMPLES", "/work/.mirror/dcentelles+dccomms_examples/repo"))
 HEAD = "1c03392"            # the last commit (2020); the netsim_twinbot_* scenes were deleted in 7431fee
@@ -90,29 +90,13 @@ CASES = ([(f"perf/{sc}/{p}/{v}", lambda sc=sc, p=p, v=v: perf(sc, p, v))
 @pytest.mark.skipif(not REPO.exists(), reason="no clone of dcentelles/dccomms_examples (UWSIMNET_DCCOMMS_EXAMPLES)")
 @pytest.mark.parametrize("name, make", CASES, ids=[c[0] for c in CASES])
 def test_every_instantiation_loads_and_runs(name, make):
-    text = make()
-    try:
-        scene = load_scene_text(text, f"{name}.xml", on_warning=lambda _w: None)
-    except SceneError as e:
-        if "DcMacPacketBuilder" in str(e):
-            pytest.xfail("DcMacPacketBuilder is the framing of branch drivers (formats/dccomms.py)")
-        raise
+    scene = load_scene_text(make(), f"{name}.xml", on_warning=lambda _w: None)
     net = Network(scene, seed=1, duration=3.0)
     net.run()
     assert net.modems
 
 
-def _known(name: str) -> bool:
-    from uwsimnet_zenoh.phy.framing import builder
-    try:
-        builder(name)
-    except ValueError:
-        return False
-    return True
-
-
 @pytest.mark.skipif(not REPO.exists(), reason="no clone of dcentelles/dccomms_examples (UWSIMNET_DCCOMMS_EXAMPLES)")
-@pytest.mark.skipif(not _known("DcMacPacketBuilder"), reason="DcMacPacketBuilder: the framing of branch drivers")
 def test_the_dcmac_scene_delivers_frames_with_dcmac():
     """netsim_twinbot_dcmac_4slaves as mac_performance.sh:342-370 at cdad6eb drives it: four slaves (addresses 1-4)
     send to the master (0), the master to slave 1; example4's apps are flows here."""
@@ -126,7 +110,7 @@ def test_the_dcmac_scene_delivers_frames_with_dcmac():
     assert {d.mac.name for _, d in scene.devices()} == {"dcmac"}
     net = Network(scene, seed=1, duration=120.0)
     recs: list[dict] = []
-    net.tracer.sinks.append(recs.append)
+    net.tracer.add(recs.append)
     net.run()
     for flow in ("bluerov2_s100", "bluerov2_f_s100", "bluerov2_f2_s100", "bluerov2_f3_s100", "g500_s100"):
         sent = {r["seq"] for r in recs if r["ev"] == "enq" and r["flow"] == flow}
