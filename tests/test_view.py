@@ -402,12 +402,17 @@ def test_page_shows_a_live_run(browser, live, tmp_path):
         assert browser.js("return uwsimnetView.counters('alpha-m').tx") >= 1
         shot(browser, tmp_path, "view-live.png")
         # pause and resume through the control API, from the page's buttons
+        browser.wait("return !document.getElementById('pause').disabled", what="control allowed")
         browser.click("#pause")
         browser.wait("return !document.getElementById('paused').hidden", what="paused")
+        browser.wait("return document.getElementById('ctlmsg').textContent.startsWith('paused at t = ')",
+                     what="the pause confirmed")
         time.sleep(0.3)                                       # clock samples sent before the pause are in
         t_paused = browser.js("return uwsimnetView.T")
         time.sleep(0.5)
         assert browser.js("return uwsimnetView.T") == t_paused
+        # the confirmation outlives the updates that came since (it stays until the next answer)
+        assert browser.js("return document.getElementById('ctlmsg').textContent").startswith("paused at t = ")
         assert w.control("state")["paused"] is True
         browser.click("#resume")
         browser.wait("return document.getElementById('paused').hidden", what="resumed")

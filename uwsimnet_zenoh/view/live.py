@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import math
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import zenoh
@@ -130,7 +131,10 @@ class LiveSource:
         self.state.set_kind(k.name, kind)
 
     # -- queries -----------------------------------------------------------------------------------
-    def _get(self, key: str, timeout: float = 2.0, payload: bytes | None = None) -> list[dict[str, Any]]:
+    def _get(self, key: str, timeout: float = 2.0, payload: bytes | None = None,
+             on_reply: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+        """The decoded replies to a query; `on_reply` sees each as it comes (the query may wait its timeout
+        for routers that never answer, and what the page shows must not wait with it)."""
         out = []
         try:
             for r in self.session.get(key, payload=payload, timeout=timeout,
@@ -140,17 +144,22 @@ class LiveSource:
                         m = wire.unpack(r.ok.payload.to_bytes(), wire.MAX_REPLY_MESSAGE)
                         if isinstance(m, dict):
                             out.append(m)
+                            if on_reply is not None:
+                                on_reply(m)
         except Exception:  # noqa: BLE001 - a router gone for a moment: try again at the next refresh
             return []
         return out
 
+    def _on_state(self, s: dict[str, Any]) -> None:
+        if s.get("ok"):
+            self.state.set_control(True)        # control answers: the page may pause at once
+            self.state.merge_state(s)
+
     def refresh(self) -> None:
         """Modems and vehicles from control `state` (whether control answers says if it is allowed) and
         `modem/*/info` (FIFO capacity, range)."""
-        states = [s for s in self._get(self.keys.control("state")) if s.get("ok")]
+        states = [s for s in self._get(self.keys.control("state"), on_reply=self._on_state) if s.get("ok")]
         self.state.set_control(bool(states))
-        for s in states:
-            self.state.merge_state(s)
         modems = {}
         for m in self._get(self.keys.info_all):
             if isinstance(m.get("id"), str):

@@ -335,7 +335,10 @@
   function ctlButtons() {
     const can = S.mode === "live" && !!S.doc.control;
     $("pause").disabled = !can; $("resume").disabled = !can;
-    $("ctlmsg").textContent = S.mode === "live" && !can ? "control not allowed" : "";
+    // the last pause/resume answer stays until the next one; only the "not allowed" note follows `can`
+    const m = $("ctlmsg"), note = "control not allowed";
+    if (S.mode === "live" && !can) m.textContent = note;
+    else if (m.textContent === note) m.textContent = "";
   }
 
   // -- time ----------------------------------------------------------------------------------------
