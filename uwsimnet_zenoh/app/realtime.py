@@ -326,6 +326,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 print(f"uwsimnet: stopping ({signal.Signals(stop.signum).name}) at t={clock.now():.3f} s",
                       flush=True)
         finally:
+            t_stop = clock.now()                # the run ends now, whenever its last event was
             faulthandler.dump_traceback_later(30, exit=True)     # a shutdown that hangs dies loudly
             clock.stop()
             if not clock.join(5.0):
@@ -351,7 +352,9 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 broker.close()
                 summary["edge"] = broker.edge_summary()
                 summary["ingress_warn"] = broker.ingress_warn_s
-            out.finish(net.end_record(reason, **extra))     # the last batch, the end record last
+            if reason == "duration" and duration is not None:
+                t_stop = min(t_stop, duration)
+            out.finish(net.end_record(reason, t=t_stop, **extra))     # the last batch, the end record last
             out.__exit__(None, None, None)
             session.close()
             faulthandler.cancel_dump_traceback_later()

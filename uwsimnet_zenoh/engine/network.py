@@ -144,10 +144,12 @@ class Network:
         self.sched.clear()
         return n
 
-    def end_record(self, reason: str, **extra: Any) -> dict[str, Any]:
+    def end_record(self, reason: str, t: float | None = None, **extra: Any) -> dict[str, Any]:
         """The trace's last line when a run ends before its planned duration (or in realtime): the
-        actual end time, which `uwsimnet report` uses instead of the meta duration."""
-        self.end = {"ev": "end", "t": round(self.sched.now, 9), "reason": reason, **extra}
+        actual end time, which `uwsimnet report` uses instead of the meta duration.  `t`: when the run
+        ended (a realtime run: the clock's time at the stop, not its last event's), never before now."""
+        end = self.sched.now if t is None else max(t, self.sched.now)
+        self.end = {"ev": "end", "t": round(end, 9), "reason": reason, **extra}
         return self.end
 
     def run(self, until: float | None = None) -> None:
