@@ -249,6 +249,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UwsimnetError as e:
         print(e, file=sys.stderr)
         return 2
+    except OSError as e:
+        if e.filename is None:          # not about a path: a bug or the machine's, shown whole
+            raise
+        # a path the user named (or one made from it) that cannot be written or read: one line, as bad input
+        target = e.filename if e.filename2 is None else f"{e.filename} -> {e.filename2}"
+        print(f"uwsimnet: {target}: {e.strerror or e}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         return 130
 
