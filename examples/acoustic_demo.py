@@ -63,7 +63,7 @@ def main() -> int:
     ap.add_argument("--port", type=int, default=0, help="the simulator's Zenoh port (default 0: a free one)")
     a = ap.parse_args()
     py = sys.executable
-    trace = ROOT / "out" / "acoustic-apps.jsonl"
+    trace = Path.cwd() / "out" / "acoustic-apps.jsonl"    # out/ where the command runs (the README: the top)
     procs: list[tuple[str, subprocess.Popen]] = []
 
     def start(name: str, argv: list[str], lines: queue.Queue | None = None) -> subprocess.Popen:
@@ -106,7 +106,7 @@ def main() -> int:
                     p.wait(5)
         time.sleep(0.2)
     codes = {n: p.returncode for n, p in procs}
-    wrote = f"; trace {trace.relative_to(ROOT)}" if trace.is_file() else "; no trace written"
+    wrote = f"; trace {trace.relative_to(Path.cwd())}" if trace.is_file() else "; no trace written"
     print(f"[demo] exit codes {codes}{wrote}", flush=True)
     return 0 if all(c == 0 for c in codes.values()) else 1
 

@@ -91,8 +91,16 @@ class Bg:
         return self.p.returncode
 
 
-def run(argv: list[str], timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+def run(argv: list[str], timeout: float = 120, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+def workdir(tmp: Path) -> Path:
+    """A folder that looks like the repository's top to the README's commands (its .venv, scenes and examples
+    linked), so what they write (out/) lands there and never in a user's out/."""
+    for name in (".venv", "scenes", "examples"):
+        (tmp / name).symlink_to(ROOT / name)
+    return tmp
 
 
 def test_readme_commands_block(tmp_path):
@@ -100,9 +108,10 @@ def test_readme_commands_block(tmp_path):
     assert [argv[1] for argv, _ in cmds][:4] == ["validate", "run", "report", "plot"]
     cmds = cmds[:4]                 # (then `uwsimnet sweep`: a 20-run campaign, tested in its own file)
     outs = []
+    cwd = workdir(tmp_path)
     for argv, bg in cmds:
         assert not bg and Path(ROOT / argv[0]).exists(), argv
-        r = run(argv)
+        r = run(argv, cwd=cwd)
         assert r.returncode == 0, (argv, r.stdout, r.stderr)
         assert "Traceback" not in r.stderr
         outs.append(r.stdout)
@@ -110,10 +119,11 @@ def test_readme_commands_block(tmp_path):
     assert "rov0-to-rov1" in outs[1] and "trace: out/rf.jsonl" in outs[1]
     assert "rov0-to-rov1" in outs[2] and "thr B/s" in outs[2]
     figs = [ln for ln in outs[3].splitlines() if ln.endswith(".png")]
-    assert figs and all((ROOT / f).is_file() for f in figs)
+    assert figs and all((cwd / f).is_file() for f in figs)
+    assert (cwd / "out" / "rf.jsonl").is_file()
 
 
-def test_readme_real_time_block_in_order_on_fresh_ports():
+def test_readme_real_time_block_in_order_on_fresh_ports(tmp_path):
     cmds = commands(section("Real time, your own apps, real modems"))
     names = [" ".join(a[:2]) if "gli" not in a[0] else f"gli {a[a.index('acoustic-apps') + 1]}" for a, _ in cmds]
     assert names == [".venv/bin/python examples/acoustic_demo.py", ".venv/bin/uwsimnet run", "gli pose",
@@ -122,7 +132,7 @@ def test_readme_real_time_block_in_order_on_fresh_ports():
     assert [bg for _, bg in cmds] == [False, False, False, True, False]
 
     # 1. the demo, on a port of its own
-    r = run(demo, timeout=120)
+    r = run(demo, timeout=120, cwd=workdir(tmp_path))
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
     assert re.search(r"^\[demo\] simulator on tcp/127\.0\.0\.1:\d+; starting the apps$", r.stdout, re.M)
     assert re.search(r"^\[pong\] pong_app: got 'ping \d+' from 1, one-way delay", r.stdout, re.M)
