@@ -8,10 +8,11 @@ STAMP := $(VENV)/.installed
 
 $(STAMP): pyproject.toml gli_clients/python/pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) on PATH (or make PY=python3)"; exit 2; }
-	$(PY) -m venv $(VENV)
-	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e gli_clients/python
-	$(BIN)/pip install -q -e '.[dev]'
+	@echo "setup: a virtual environment in $(VENV) ($(PY))"
+	@$(PY) -m venv $(VENV)
+	@echo "setup: installing the package and its dependencies (pip; its log: $(VENV)/pip.log)"
+	@{ $(BIN)/pip install -q --upgrade pip && $(BIN)/pip install -q -e gli_clients/python \
+	   && $(BIN)/pip install -q -e '.[dev]'; } >$(VENV)/pip.log 2>&1 || { tail -n 30 $(VENV)/pip.log; exit 1; }
 	@$(BIN)/python build_native.py
 	@touch $(STAMP)
 
@@ -29,7 +30,7 @@ paper: native
 TESTFLAGS ?= -n 2 --dist loadfile
 test: native
 	$(BIN)/ruff check uwsimnet_zenoh tests bench
-	$(BIN)/python -m pytest -q -p no:cacheprovider $(TESTFLAGS)
+	$(BIN)/python -m pytest -q -rs -p no:cacheprovider $(TESTFLAGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -81,6 +81,8 @@ def main(argv: list[str]) -> int:
     clean()                                         # a failed build leaves no extension behind
     FAILED.unlink(missing_ok=True)
     t0 = time.monotonic()
+    print(f"uwsimnet: compiling {len(_native.MODULES)} engine modules with mypyc (about a minute, once; "
+          "again only after one of them changes)", flush=True)
     BUILD.mkdir(parents=True, exist_ok=True)
     code = build()
     if code is not None:
