@@ -201,3 +201,31 @@ def test_experiment_seeds_only_where_they_apply(tmp_path):
                         "--out", str(tmp_path)], capture_output=True, text=True)
     assert r.returncode == 2
     assert r.stderr.strip() == "uwsimnet experiment: --seeds applies to phy-layer, twinbot and table1"
+
+
+def test_a_huge_seed_range_is_one_line_not_a_list_built_first():
+    with pytest.raises(UserError, match="more than 100000 runs"):
+        cp.parse_seeds("1-99999999999999")
+    scene = str(ROOT / "scenes/examples/two-nodes.xml")
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "sweep", scene, "--seeds", "0-99999999999999",
+                        "--out", "/nonexistent/never"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--seeds" in r.stderr, r.stderr
+
+
+def test_the_code_is_part_of_a_runs_key(tmp_path, monkeypatch):
+    """A sweep after a change of the sources re-runs, never reuses rows of other code (issue #36)."""
+    from uwsimnet_zenoh.app import api
+
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "a.py").write_text("X = 1\n")
+    before = api.sources_digest([pkg])
+    (pkg / "a.py").write_text("X = 2\n")
+    assert api.sources_digest([pkg]) != before
+    ours = api.sources_digest([ROOT / "uwsimnet_zenoh", ROOT / "gli_clients/python/uwsimnet_gli"])
+    assert api.version().endswith("+src." + ours[:12])
+    c = cp.Campaign(scenes=[str(lossy(tmp_path))], sets={}, seeds=[1, 2], out=tmp_path / "o", duration=5)
+    assert (cp.execute(c)["ran"], cp.execute(c)["reused"]) == (2, 2)
+    monkeypatch.setattr(cp, "version", lambda: "0.1.0+src.changed")
+    rep = cp.execute(c)
+    assert (rep["ran"], rep["reused"]) == (2, 0)

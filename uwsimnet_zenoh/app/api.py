@@ -14,8 +14,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -32,14 +33,33 @@ FLOW_METRICS = ("throughput", "offered", "efficiency", "delivery_ratio", "delay_
 """Per-flow numbers a result row carries (`flow.<name>.<metric>`)."""
 
 
+@lru_cache(maxsize=1)
 def version() -> str:
+    """The code a run ran: the package's version and a hash of its sources (uwsimnet_zenoh and the wire's
+    uwsimnet_gli, every .py file by path and bytes), so a campaign re-runs, rather than reuses, its rows after
+    any change of the code (the version string alone stays 0.1.0 from commit to commit; ns-3 SEM records the
+    commit for the same reason).  Part of every campaign run's key."""
     from importlib.metadata import PackageNotFoundError  # noqa: PLC0415
     from importlib.metadata import version as _v  # noqa: PLC0415
 
+    import uwsimnet_gli  # noqa: PLC0415
+
     try:
-        return _v("uwsimnet-zenoh")
+        base = _v("uwsimnet-zenoh")
     except PackageNotFoundError:  # pragma: no cover - running from a source tree
-        return "0+unknown"
+        base = "0+unknown"
+    pkgs = (Path(__file__).resolve().parents[1], Path(uwsimnet_gli.__file__).resolve().parent)
+    return f"{base}+src.{sources_digest(pkgs)[:12]}"
+
+
+def sources_digest(packages: Iterable[Path]) -> str:
+    """sha256 of the .py files under `packages`, by path (relative to each package's parent) and bytes."""
+    h = hashlib.sha256()
+    for pkg in packages:
+        for f in sorted(pkg.rglob("*.py")):
+            h.update(f"{pkg.name}/{f.relative_to(pkg).as_posix()}\0".encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
 
 
 @dataclass

@@ -29,6 +29,9 @@ from .api import run, run_key, scene_digest, version
 from .overrides import apply
 from .virtual import load_scene_file
 
+MAX_SEEDS = 100_000
+"""At most this many seeds per setting: a campaign, not a typo of ten digits (which would build the list first)."""
+
 
 def parse_seeds(text: str) -> list[int]:
     """`1-20`, `1,3,5` or `1-5,10`: the seeds (integers >= 0), in order, without repeats."""
@@ -37,6 +40,8 @@ def parse_seeds(text: str) -> list[int]:
         lo, dash, hi = part.strip().partition("-")
         if not lo.isdigit() or (dash and not hi.isdigit()) or (dash and int(hi) < int(lo)):
             raise UserError(f"--seeds {text!r}: expected N, A-B (A <= B) or a comma list of them")
+        if dash and int(hi) - int(lo) + 1 + len(out) > MAX_SEEDS:
+            raise UserError(f"--seeds {text!r}: more than {MAX_SEEDS} runs per setting; give fewer seeds")
         out += range(int(lo), int(hi) + 1) if dash else [int(lo)]
     seen: set[int] = set()
     return [x for x in out if not (x in seen or seen.add(x))]
