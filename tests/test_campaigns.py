@@ -4,6 +4,7 @@ LocalCluster giving identical rows, resume after an interruption, failed runs re
 from __future__ import annotations
 
 import json
+import os
 import math
 import subprocess
 import sys
@@ -63,6 +64,7 @@ def test_overrides_change_what_runs():
     ("device.*.bitrate", "-3", "bitrate: Input should be greater than 0"),
     ("device.*.bitrate", "fast", "bitrate: Input should be a valid number"),
     ("device.*.mac", "fama", "unknown MAC protocol 'fama'"),
+    ("device.*.mac", "antigravity:Fly", "a MAC given as module:Class belongs in a scene you wrote"),
     ("device.*.error.expr", "m +* 2", "override device.*.error.expr:"),
     ("flow.x.rate", "1", "no flow 'x'"),
     ("flow.*.rate", "0", "rate must be a finite number > 0"),
@@ -229,3 +231,14 @@ def test_the_code_is_part_of_a_runs_key(tmp_path, monkeypatch):
     monkeypatch.setattr(cp, "version", lambda: "0.1.0+src.changed")
     rep = cp.execute(c)
     assert (rep["ran"], rep["reused"]) == (2, 0)
+
+
+def test_an_override_never_imports_a_module(tmp_path):
+    """`--set device.*.mac=MODULE:Class` from a command line or a campaign file imports nothing (issue #41)."""
+    (tmp_path / "sideeffect_probe.py").write_text("open(__file__ + '.imported', 'w').close()\n")
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "sweep", str(TWO_NODES), "--set",
+                        "device.*.mac=sideeffect_probe:Mac", "--seeds", "1", "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                       env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert r.returncode == 2 and "module:Class" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "sideeffect_probe.py.imported").exists()

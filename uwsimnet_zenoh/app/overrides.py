@@ -9,7 +9,7 @@ Paths (`<id>` may be `*` for every device or flow):
     device.<id>.<field>                          bitrate, tx_fifo_bytes, intrinsic_tx_s, intrinsic_rx_s,
                                                  jitter_tx_s, jitter_rx_s, max_distance, min_distance,
                                                  header_bytes, max_frame_bytes
-    device.<id>.mac                              a MAC name (built-in, entry point or module:Class)
+    device.<id>.mac                              a MAC name (built-in or entry point; module:Class is refused)
     device.<id>.mac.<param>                      a <macProtocol> parameter (text, as in the XML)
     device.<id>.error.expr | error.unit          the rateErrorModel
     vehicle.<name>.position                      "x y z" (m) or a list of three numbers
@@ -77,6 +77,9 @@ def _number_list(value: Any, path: str) -> tuple[float, float, float]:
 def _device(dev: Device, rest: list[str], value: Any, path: str) -> Device:
     if rest == ["mac"]:
         name = str(value).strip() or "none"
+        if ":" in name:     # an override names what is installed, never a module to import (campaign files travel)
+            raise _refuse(path, f"{name!r}: a MAC given as module:Class belongs in a scene you wrote; here name a"
+                                " built-in or an installed plug-in (entry point group uwsimnet.mac)")
         try:
             resolve(name)
         except ValueError as e:
