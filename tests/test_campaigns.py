@@ -4,8 +4,8 @@ LocalCluster giving identical rows, resume after an interruption, failed runs re
 from __future__ import annotations
 
 import json
-import os
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
