@@ -137,3 +137,29 @@ def adapter_endpoint(mode: str, connect: list[str], listen: list[str], locs: lis
             host = {"0.0.0.0": "127.0.0.1", "[::]": "[::1]"}.get(m.group(2), m.group(2))
             return [f"{m.group(1)}/{host}:{m.group(3)}"]
     raise UserError(f"--ros2: cannot tell where the run's router listens ({', '.join(listen) or 'nowhere'})")
+
+
+def run_link(connect: list[str], world: str, modem: str, topics: list[str], *, domain: int, namespace: str,
+             mtu: int, distro: str, duration: float | None) -> dict:
+    """`uwsimnet ros2-link`: join this robot's graph to the others through `modem` until Ctrl-C or
+    `duration` seconds; returns the link's summary (per-topic counters, latency, problems)."""
+    import time  # noqa: PLC0415 - start-up time, as the module's other imports
+
+    from ..bus.ros2_link import Ros2Link  # noqa: PLC0415
+    from ..ros2.link import LinkError, parse_rule  # noqa: PLC0415
+
+    rules = [parse_rule(t) for t in topics]
+    if not rules:
+        raise LinkError("ros2-link: give at least one --topic")
+    try:
+        from ..ros2.cdr import Codec  # noqa: PLC0415 - the extra uwsimnet-zenoh[ros2]
+    except ImportError:
+        raise UserError("ros2-link needs the extra: pip install 'uwsimnet-zenoh[ros2]'") from None
+    with Ros2Link(connect, world, modem, rules, hasher=Codec(distro), domain=domain, namespace=namespace,
+                  mtu=mtu) as link:
+        print(f"ros2-link: {modem} carries {len(rules)} topic(s) of ROS domain {domain}; running", flush=True)
+        end = None if duration is None else time.monotonic() + duration
+        with contextlib.suppress(KeyboardInterrupt):
+            while end is None or time.monotonic() < end:
+                time.sleep(0.2)
+        return link.summary()

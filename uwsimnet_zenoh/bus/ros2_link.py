@@ -60,7 +60,9 @@ class Ros2Link:
                 if r.direction in ("out", "both"):
                     ep = self.graph.add("MS", NODE, namespace, r.name, r.type, rw.QoS(depth=r.depth))
                     self.subs[ep.topic_key] = i
-                    self._entities.append(s.declare_subscriber(ep.match_key, self._on_ros))
+                    # REMOTE: never hear our own republications (on a 'both' topic they would echo back over the water)
+                    self._entities.append(s.declare_subscriber(ep.match_key, self._on_ros,
+                                                               allowed_origin=zenoh.Locality.REMOTE))
                 if r.direction in ("in", "both"):
                     ep = self.graph.add("MP", NODE, namespace, r.name, r.type, rw.QoS(depth=r.depth))
                     self.pubs[i] = (ep, s.declare_publisher(ep.key, reliability=zenoh.Reliability.RELIABLE))
