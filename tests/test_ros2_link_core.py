@@ -134,3 +134,21 @@ def test_parse_rule_cli_form_and_errors():
             L.parse_rule(bad)
     with pytest.raises(L.LinkError, match="twice"):
         L.check_rules([r, r])
+
+
+def test_pose_from_ros_by_default_for_vehicles_positioned_from_outside():
+    """Under --ros2 a poseSource-zenoh vehicle no --ros-pose names follows nav_msgs/Odometry on /<vehicle>/odom
+    (rmw_zenoh key by its rules: domain/topic/dds type/hash); a named one keeps its option; a scene-driven one
+    gets nothing."""
+    from uwsimnet_zenoh.ros2.bridge import ModemInfo, Options, Ros2Bridge, VehicleInfo, parse_pose_input
+    from uwsimnet_zenoh.ros2.cdr import Codec
+
+    codec = Codec("jazzy")
+    vehicles = [VehicleInfo("alpha-1", "zenoh"), VehicleInfo("bravo", "zenoh"), VehicleInfo("charlie", "scene")]
+    opts = Options(poses=(parse_pose_input("bravo=pose:/bravo/pose"),))
+    b = Ros2Bridge(opts, "0123456789abcdef0123456789abcdef", codec, [ModemInfo("a-m", 1, "alpha-1")], vehicles)
+    subs = {e.topic: e for e in b.graph.endpoints if e.kind == "MS" and e.role == "pose"}
+    assert set(subs) == {"/alpha_1/odom", "/bravo/pose"}
+    odom = "nav_msgs/msg/Odometry"
+    assert subs["/alpha_1/odom"].key == f"0/alpha_1/odom/nav_msgs::msg::dds_::Odometry_/{codec.key_hash(odom)}"
+    assert subs["/alpha_1/odom"].arg == "alpha-1"

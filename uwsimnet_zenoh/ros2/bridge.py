@@ -205,6 +205,15 @@ def check_poses(opts: Options, vehicles: Sequence[VehicleInfo]) -> None:
         seen.add(p.vehicle)
 
 
+def default_poses(opts: Options, vehicles: Sequence[VehicleInfo]) -> tuple[PoseInput, ...]:
+    """--ros-pose inputs, plus for every vehicle positioned from outside that none names the default
+    `nav_msgs/Odometry` on `/<vehicle>/odom` (the topic a robot simulator's odometry plug-in publishes), so a
+    `poseSource zenoh` vehicle follows ROS with no option."""
+    named = {p.vehicle for p in opts.poses}
+    return opts.poses + tuple(PoseInput(v.name, "odom", f"/{ros_name(v.name)}/odom") for v in vehicles
+                              if v.pose_source == "zenoh" and v.name not in named)
+
+
 # == what the bridge hands back =======================================================================
 
 @dataclass(frozen=True)
@@ -290,7 +299,7 @@ class Ros2Bridge:
                         "diag"))
         if opts.clock:
             self._pub(g.add("MP", SIM_NODE, "/", "/clock", "rosgraph_msgs/msg/Clock", QOS_CLOCK, "clock"))
-        for p in opts.poses:
+        for p in default_poses(opts, vehicles):
             if p.source == "tf":
                 self._tf_in[p.topic.strip("/")] = p
             else:
