@@ -152,3 +152,26 @@ def test_pose_from_ros_by_default_for_vehicles_positioned_from_outside():
     odom = "nav_msgs/msg/Odometry"
     assert subs["/alpha_1/odom"].key == f"0/alpha_1/odom/nav_msgs::msg::dds_::Odometry_/{codec.key_hash(odom)}"
     assert subs["/alpha_1/odom"].arg == "alpha-1"
+
+
+def test_scene_ros_pose_element():
+    """<rosPose> in a vehicle: its pose input under --ros2 (an option still wins); a bad one is file:line."""
+    from test_broker_e2e import device_xml, scene_xml
+
+    from uwsimnet_zenoh.app import ros2 as app_ros2
+    from uwsimnet_zenoh.errors import UwsimnetError
+    from uwsimnet_zenoh.ros2.bridge import Options, default_poses, parse_pose_input
+    from uwsimnet_zenoh.scene import load_scene_text
+
+    def scene(pose: str) -> str:
+        return scene_xml(vehicles=f"<vehicle><name>bravo</name><poseSource>zenoh</poseSource>{pose}"
+                                  f"{device_xml('b-m', 2)}</vehicle>")
+
+    sc = load_scene_text(scene("<rosPose>pose:/bravo/pose@ned</rosPose>"), source="s.xml")
+    assert sc.vehicles[0].ros_pose == "pose:/bravo/pose@ned"
+    _, vehicles = app_ros2.scene_view(sc)
+    assert default_poses(Options(), vehicles) == (parse_pose_input("bravo=pose:/bravo/pose@ned"),)
+    opt = parse_pose_input("bravo=odom:/x")
+    assert default_poses(Options(poses=(opt,)), vehicles) == (opt,)
+    with pytest.raises(UwsimnetError, match=r"s\.xml:\d+: .*rosPose"):
+        load_scene_text(scene("<rosPose>gps:/bravo</rosPose>"), source="s.xml")

@@ -73,7 +73,7 @@ def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
     modems, vehicles = [], []
     for v in scene.vehicles:
         static = v.pose_source == "scene" and len({(p.x, p.y, p.z) for p in v.trajectory}) <= 1
-        vehicles.append(VehicleInfo(v.name, v.pose_source, static))
+        vehicles.append(VehicleInfo(v.name, v.pose_source, static, v.ros_pose))
         modems += [ModemInfo(d.dccomms_id, d.address, v.name) for d in v.devices]
     return modems, vehicles
 
@@ -81,11 +81,12 @@ def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
 def check(opts: Options, scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
     """The scene's view, once the options are known to fit it (UserError otherwise), before any session."""
     from ..ros2 import wire as rw  # noqa: PLC0415 - see the imports
-    from ..ros2.bridge import check_poses  # noqa: PLC0415
+    from ..ros2.bridge import check_poses, default_poses  # noqa: PLC0415
 
     modems, vehicles = scene_view(scene)
     try:
         check_poses(opts, vehicles)
+        default_poses(opts, vehicles)
     except rw.Ros2WireError as e:
         raise UserError(e.detail) from None
     return modems, vehicles

@@ -181,6 +181,7 @@ class VehicleInfo:
     name: str
     pose_source: str                      # scene | zenoh
     static: bool = False                  # scene-driven and never moving: its pose goes on /tf_static
+    ros_pose: str | None = None           # the scene's <rosPose> (odom:TOPIC | pose:TOPIC | tf:FRAME[@enu|@ned])
 
 
 def ros_name(name: str) -> str:
@@ -206,12 +207,14 @@ def check_poses(opts: Options, vehicles: Sequence[VehicleInfo]) -> None:
 
 
 def default_poses(opts: Options, vehicles: Sequence[VehicleInfo]) -> tuple[PoseInput, ...]:
-    """--ros-pose inputs, plus for every vehicle positioned from outside that none names the default
-    `nav_msgs/Odometry` on `/<vehicle>/odom` (the topic a robot simulator's odometry plug-in publishes), so a
-    `poseSource zenoh` vehicle follows ROS with no option."""
+    """--ros-pose inputs; for every vehicle positioned from outside that none names, the scene's <rosPose>,
+    else `nav_msgs/Odometry` on `/<vehicle>/odom` (the topic a robot simulator's odometry plug-in publishes),
+    so a `poseSource zenoh` vehicle follows ROS with no option."""
     named = {p.vehicle for p in opts.poses}
-    return opts.poses + tuple(PoseInput(v.name, "odom", f"/{ros_name(v.name)}/odom") for v in vehicles
-                              if v.pose_source == "zenoh" and v.name not in named)
+    return opts.poses + tuple(
+        parse_pose_input(f"{v.name}={v.ros_pose}") if v.ros_pose
+        else PoseInput(v.name, "odom", f"/{ros_name(v.name)}/odom")
+        for v in vehicles if v.pose_source == "zenoh" and v.name not in named)
 
 
 # == what the bridge hands back =======================================================================
