@@ -60,8 +60,12 @@ def test_link_over_the_evologics_driver_and_emulator(parts):
         assert wd.modem("b-m").wait_kind(("real",), timeout=10) == "real"
     got: list[tuple[str, bytes, bytes]] = []
     cond = threading.Condition()
+    diags: list[bytes] = []
 
     def on(sample: zenoh.Sample) -> None:
+        if "/diagnostics/" in str(sample.key_expr):
+            diags.append(sample.payload.to_bytes())
+            return
         with cond:
             got.append((str(sample.key_expr), sample.payload.to_bytes(), sample.attachment.to_bytes()))
             cond.notify_all()
@@ -69,8 +73,8 @@ def test_link_over_the_evologics_driver_and_emulator(parts):
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", f'["{parts.endpoint}"]')
-    with (Ros2Link([parts.endpoint], WORLD, "b-m", rules, hasher=codec, domain=1, mtu=64) as a,
-          Ros2Link([parts.endpoint], WORLD, "c-m", rules, hasher=codec, domain=2, mtu=64) as b,
+    with (Ros2Link([parts.endpoint], WORLD, "b-m", rules, codec=codec, domain=1, mtu=64) as a,
+          Ros2Link([parts.endpoint], WORLD, "c-m", rules, codec=codec, domain=2, mtu=64) as b,
           zenoh.open(conf) as robots):
         robots.declare_subscriber("2/**", on)
         time.sleep(1.0)

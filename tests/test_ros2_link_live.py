@@ -79,8 +79,12 @@ def test_twist_and_image_cross_between_two_graphs(sim):
     im_b = w.data_key(2, "/camera/compressed", IMAGE, codec.key_hash(IMAGE))
     got: list[tuple[str, bytes, bytes, int]] = []
     cond = threading.Condition()
+    diags: list[bytes] = []
 
     def on(sample: zenoh.Sample) -> None:
+        if "/diagnostics/" in str(sample.key_expr):
+            diags.append(sample.payload.to_bytes())
+            return
         with cond:
             got.append((str(sample.key_expr), sample.payload.to_bytes(), sample.attachment.to_bytes(),
                         time.time_ns()))
@@ -89,8 +93,8 @@ def test_twist_and_image_cross_between_two_graphs(sim):
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", f'["{sim}"]')
-    with (Ros2Link([sim], WORLD, "alpha-m", rules(), hasher=codec, domain=1, mtu=MTU) as a,
-          Ros2Link([sim], WORLD, "bravo-m", rules(), hasher=codec, domain=2, mtu=MTU) as b,
+    with (Ros2Link([sim], WORLD, "alpha-m", rules(), codec=codec, domain=1, mtu=MTU) as a,
+          Ros2Link([sim], WORLD, "bravo-m", rules(), codec=codec, domain=2, mtu=MTU) as b,
           zenoh.open(conf) as robots):
         sub = robots.declare_subscriber("2/**", on)
         time.sleep(1.0)                      # declarations reach the router
@@ -139,6 +143,17 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         s = a.summary()["topics"]
         assert s["/cmd_vel"]["sent"] == 3 and s["/camera/compressed"]["sent"] == 1
         assert b.summary()["topics"]["/camera/compressed"]["received"] == 1
+        # 5. robot B's /diagnostics (read by rosbags): per-topic counters and latency
+        n = len(diags)
+        deadline = time.monotonic() + 10
+        while len(diags) == n:
+            assert time.monotonic() < deadline, "no /diagnostics from robot B's link"
+            time.sleep(0.05)
+        arr = codec.decode("diagnostic_msgs/msg/DiagnosticArray", diags[-1])
+        st = {x.name: {v.key: v.value for v in x.values} for x in arr.status}
+        cam = st["uwsimnet_link/bravo-m/camera/compressed"]
+        assert cam["received"] == "1" and float(cam["latency_max_s"]) > 0
+        assert st["uwsimnet_link/bravo-m/cmd_vel"]["received"] == "3"
         sub.undeclare()
 
 
@@ -169,8 +184,12 @@ def test_two_link_processes_carry_rclpy_twists(sim):
              for m, d in (("alpha-m", 1), ("bravo-m", 2))]
     got: list[tuple[str, bytes, bytes]] = []
     cond = threading.Condition()
+    diags: list[bytes] = []
 
     def on(sample: zenoh.Sample) -> None:
+        if "/diagnostics/" in str(sample.key_expr):
+            diags.append(sample.payload.to_bytes())
+            return
         with cond:
             got.append((str(sample.key_expr), sample.payload.to_bytes(), sample.attachment.to_bytes()))
             cond.notify_all()

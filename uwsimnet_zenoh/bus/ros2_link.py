@@ -25,21 +25,28 @@ from uwsimnet_gli.world import World
 
 from ..ros2 import link as L
 from ..ros2 import wire as rw
-from ..ros2.bridge import Endpoint, Graph, Hasher
+from ..ros2.bridge import Codec, Endpoint, Graph, header
 
 log = logging.getLogger("uwsimnet.bus.ros2_link")
 NODE = "uwsimnet_link"
+DIAG_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
 STATUS_TIMEOUT_S = 30.0
 """A frame whose final status never comes (the modem went away) stops holding the queue after this."""
 
 
 class Ros2Link:
     """    with Ros2Link(["tcp/127.0.0.1:7447"], "lab", "alpha-modem", rules, domain=1, hasher=codec) as link:
-    Both ends list the same rules in the same order (the topic index on air is the position)."""
+    Both ends list the same rules in the same order (the topic index on air is the position). The summary
+    goes on the robot's /diagnostics every `diagnostics_period_s`."""
 
     def __init__(self, connect: Sequence[str], world: str, modem: str, rules: Sequence[L.TopicRule], *,
-                 hasher: Hasher, domain: int = 0, namespace: str = "/", mtu: int = 64) -> None:
+                 codec: Codec, domain: int = 0, namespace: str = "/", mtu: int = 64,
+                 diagnostics_period_s: float = 1.0) -> None:
         self.rules = L.check_rules(list(rules))
+        self.codec = codec
+        self.modem_id = modem
+        self.diagnostics_period_s = diagnostics_period_s
+        self._next_diag = 0.0
         self.sender = L.Sender(self.rules, mtu)
         self.reasm = L.Reassembler()
         self.problems: dict[str, int] = {}
@@ -53,7 +60,7 @@ class Ros2Link:
         self.world = World(world, connect=list(connect))
         try:
             s = self.world.session
-            self.graph = Graph(domain, str(s.zid()), hasher)
+            self.graph = Graph(domain, str(s.zid()), codec)
             self.subs: dict[str, int] = {}
             self.pubs: dict[int, tuple[Endpoint, Any]] = {}
             for i, r in enumerate(self.rules):
@@ -67,6 +74,9 @@ class Ros2Link:
                     ep = self.graph.add("MP", NODE, namespace, r.name, r.type, rw.QoS(depth=r.depth))
                     self.pubs[i] = (ep, s.declare_publisher(ep.key, reliability=zenoh.Reliability.RELIABLE))
                     self._entities.append(self.pubs[i][1])
+            self._diag = self.graph.add("MP", NODE, namespace, "/diagnostics", DIAG_TYPE, rw.QoS(depth=10))
+            self._diag_pub = s.declare_publisher(self._diag.key, reliability=zenoh.Reliability.RELIABLE)
+            self._entities.append(self._diag_pub)
             self._tokens = [s.liveliness().declare_token(t) for t in self.graph.tokens()]
             self.modem = Modem(self.world, modem, on_receive=self._on_frame, on_status=self._on_status)
         except BaseException:
@@ -123,6 +133,12 @@ class Ros2Link:
 
     def _work(self) -> None:
         while not self._stop.is_set():
+            if time.monotonic() >= self._next_diag:
+                self._next_diag = time.monotonic() + self.diagnostics_period_s
+                try:
+                    self.publish_diagnostics()
+                except Exception as e:  # noqa: BLE001 - diagnostics never stop the link
+                    self.problem("diagnostics", repr(e))
             with self._cond:
                 if self._in_flight is not None and time.monotonic() - self._in_flight[1] > STATUS_TIMEOUT_S:
                     self._in_flight = None
@@ -180,6 +196,11 @@ class Ros2Link:
         st.latency_sum += lat
         st.latency_max = max(st.latency_max, lat)
         pub.put(cdr, attachment=ep.attachment(src_ns))
+
+    def publish_diagnostics(self) -> None:
+        now_ns = time.time_ns()
+        fields = {"header": header(now_ns / 1e9, ""), "status": L.diagnostic_status(self.summary(), self.modem_id)}
+        self._diag_pub.put(self.codec.encode(DIAG_TYPE, fields), attachment=self._diag.attachment(now_ns))
 
     def summary(self) -> dict:
         """Per-topic counters (sending and receiving side), reassembly drops and problems."""

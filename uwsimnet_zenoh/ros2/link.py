@@ -379,3 +379,19 @@ class Sender:
         st.frames += 1
         st.bytes += len(frame)
         return self.rules[best].dst, frame
+
+
+def diagnostic_status(summary: dict, modem: str) -> list[dict]:
+    """A link summary as diagnostic_msgs/DiagnosticStatus fields: one status per topic (level WARN when it
+    dropped anything), one for the problems counted."""
+    out = []
+    for name, d in summary["topics"].items():
+        values = [{"key": k, "value": str(d[k])} for k in ("offered", "sent", "frames", "bytes", "received")]
+        values += [{"key": f"dropped_{k}", "value": str(n)} for k, n in d["dropped"].items()]
+        values += [{"key": k, "value": f"{d[k]:.6f}"} for k in ("latency_mean_s", "latency_max_s") if d[k] is not None]
+        out.append({"level": 1 if d["dropped"] else 0, "name": f"uwsimnet_link/{modem}{name}",
+                    "message": "dropped messages" if d["dropped"] else "ok", "hardware_id": modem, "values": values})
+    bad = summary["problems"]
+    out.append({"level": 1 if bad else 0, "name": f"uwsimnet_link/{modem}", "message": "problems" if bad else "ok",
+                "hardware_id": modem, "values": [{"key": k, "value": str(n)} for k, n in bad.items()]})
+    return out
