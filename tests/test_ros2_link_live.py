@@ -140,8 +140,20 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         robots.put(tw_a, cdr, attachment=w.encode_attachment(4, time.time_ns(), gid))
         wait(4)
         assert a.problems == {"cdr": 1, "no-attachment": 1} and b.problems == {}
+        # on the receiving side: a frame too short for its header and a topic index the link does not carry
+        from uwsimnet_gli import World
+        with World(WORLD, connect=sim) as wd, wd.modem("alpha-m") as raw:
+            for junk in (b"\x81", L.fragment(17, 0, b"\x00\x01\x00\x00", False, 0, MTU)[0]):
+                tag = raw.send(2, junk)
+                assert raw.wait_status(tag, timeout=10) is not None
+        deadline = time.monotonic() + 10
+        while b.problems != {"malformed_frame": 1, "unknown_topic": 1}:
+            assert time.monotonic() < deadline, b.problems
+            time.sleep(0.05)
+        robots.put(tw_a, cdr, attachment=w.encode_attachment(5, time.time_ns(), gid))
+        wait(5)                                                                 # the link went on
         s = a.summary()["topics"]
-        assert s["/cmd_vel"]["sent"] == 3 and s["/camera/compressed"]["sent"] == 1
+        assert s["/cmd_vel"]["sent"] == 4 and s["/camera/compressed"]["sent"] == 1
         assert b.summary()["topics"]["/camera/compressed"]["received"] == 1
         # 5. robot B's /diagnostics (read by rosbags): per-topic counters and latency
         n = len(diags)
@@ -153,7 +165,7 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         st = {x.name: {v.key: v.value for v in x.values} for x in arr.status}
         cam = st["uwsimnet_link/bravo-m/camera/compressed"]
         assert cam["received"] == "1" and float(cam["latency_max_s"]) > 0
-        assert st["uwsimnet_link/bravo-m/cmd_vel"]["received"] == "3"
+        assert st["uwsimnet_link/bravo-m/cmd_vel"]["received"] == "4"
         sub.undeclare()
 
 
