@@ -175,3 +175,13 @@ def test_scene_ros_pose_element():
     assert default_poses(Options(poses=(opt,)), vehicles) == (opt,)
     with pytest.raises(UwsimnetError, match=r"s\.xml:\d+: .*rosPose"):
         load_scene_text(scene("<rosPose>gps:/bravo</rosPose>"), source="s.xml")
+
+
+def test_cli_bad_input_is_one_line_exit_2():
+    import subprocess
+    import sys
+    base = [sys.executable, "-m", "uwsimnet_zenoh.cli", "ros2-link", "a-m", "--world", "w", "--duration", "1"]
+    for extra in (["--topic", "topic=/a"], ["--topic", "topic=/a,type=geometry_msgs/msg/Twist,dst=999"],
+                  ["--connect", "tcp/127.0.0.1:1", "--topic", "topic=/a,type=geometry_msgs/msg/Twist"]):
+        r = subprocess.run(base + extra, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr

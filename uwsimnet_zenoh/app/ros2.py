@@ -156,8 +156,14 @@ def run_link(connect: list[str], world: str, modem: str, topics: list[str], *, d
         from ..ros2.cdr import Codec  # noqa: PLC0415 - the extra uwsimnet-zenoh[ros2]
     except ImportError:
         raise UserError("ros2-link needs the extra: pip install 'uwsimnet-zenoh[ros2]'") from None
-    with Ros2Link(connect, world, modem, rules, codec=Codec(distro), domain=domain, namespace=namespace,
-                  mtu=mtu) as link:
+    from uwsimnet_gli.world import GliError  # noqa: PLC0415
+
+    try:
+        link = Ros2Link(connect, world, modem, rules, codec=Codec(distro), domain=domain, namespace=namespace,
+                        mtu=mtu)
+    except GliError as e:
+        raise UserError(f"ros2-link: {e}") from None
+    with link:
         print(f"ros2-link: {modem} carries {len(rules)} topic(s) of ROS domain {domain}; running", flush=True)
         end = None if duration is None else time.monotonic() + duration
         with contextlib.suppress(KeyboardInterrupt):
