@@ -73,7 +73,7 @@ def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
     modems, vehicles = [], []
     for v in scene.vehicles:
         static = v.pose_source == "scene" and len({(p.x, p.y, p.z) for p in v.trajectory}) <= 1
-        vehicles.append(VehicleInfo(v.name, v.pose_source, static))
+        vehicles.append(VehicleInfo(v.name, v.pose_source, static, v.ros_pose))
         modems += [ModemInfo(d.dccomms_id, d.address, v.name) for d in v.devices]
     return modems, vehicles
 
@@ -81,11 +81,12 @@ def scene_view(scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
 def check(opts: Options, scene: Any) -> tuple[list[ModemInfo], list[VehicleInfo]]:
     """The scene's view, once the options are known to fit it (UserError otherwise), before any session."""
     from ..ros2 import wire as rw  # noqa: PLC0415 - see the imports
-    from ..ros2.bridge import check_poses  # noqa: PLC0415
+    from ..ros2.bridge import check_poses, default_poses  # noqa: PLC0415
 
     modems, vehicles = scene_view(scene)
     try:
         check_poses(opts, vehicles)
+        default_poses(opts, vehicles)
     except rw.Ros2WireError as e:
         raise UserError(e.detail) from None
     return modems, vehicles
@@ -137,3 +138,35 @@ def adapter_endpoint(mode: str, connect: list[str], listen: list[str], locs: lis
             host = {"0.0.0.0": "127.0.0.1", "[::]": "[::1]"}.get(m.group(2), m.group(2))
             return [f"{m.group(1)}/{host}:{m.group(3)}"]
     raise UserError(f"--ros2: cannot tell where the run's router listens ({', '.join(listen) or 'nowhere'})")
+
+
+def run_link(connect: list[str], world: str, modem: str, topics: list[str], *, domain: int, namespace: str,
+             mtu: int, distro: str, duration: float | None) -> dict:
+    """`uwsimnet ros2-link`: join this robot's graph to the others through `modem` until Ctrl-C or
+    `duration` seconds; returns the link's summary (per-topic counters, latency, problems)."""
+    import time  # noqa: PLC0415 - start-up time, as the module's other imports
+
+    from ..bus.ros2_link import Ros2Link  # noqa: PLC0415
+    from ..ros2.link import LinkError, parse_rule  # noqa: PLC0415
+
+    rules = [parse_rule(t) for t in topics]
+    if not rules:
+        raise LinkError("ros2-link: give at least one --topic")
+    try:
+        from ..ros2.cdr import Codec  # noqa: PLC0415 - the extra uwsimnet-zenoh[ros2]
+    except ImportError:
+        raise UserError("ros2-link needs the extra: pip install 'uwsimnet-zenoh[ros2]'") from None
+    from uwsimnet_gli.world import GliError  # noqa: PLC0415
+
+    try:
+        link = Ros2Link(connect, world, modem, rules, codec=Codec(distro), domain=domain, namespace=namespace,
+                        mtu=mtu)
+    except GliError as e:
+        raise UserError(f"ros2-link: {e}") from None
+    with link:
+        print(f"ros2-link: {modem} carries {len(rules)} topic(s) of ROS domain {domain}; running", flush=True)
+        end = None if duration is None else time.monotonic() + duration
+        with contextlib.suppress(KeyboardInterrupt):
+            while end is None or time.monotonic() < end:
+                time.sleep(0.2)
+        return link.summary()

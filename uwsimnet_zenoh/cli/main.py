@@ -232,10 +232,10 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     pl.set_defaults(fn=cmd_plot)
 
     if command not in CORE:
-        from . import deploy, drivers, experiment, sweep, view  # noqa: PLC0415 - only for their commands (start-up)
+        from . import deploy, drivers, experiment, ros2_link, sweep, view  # noqa: PLC0415 - only for their commands
 
         for add_commands in (drivers.add_commands, experiment.add_commands, sweep.add_commands,
-                             deploy.add_commands, view.add_commands):
+                             deploy.add_commands, view.add_commands, ros2_link.add_commands):
             add_commands(sub)
     return p
 

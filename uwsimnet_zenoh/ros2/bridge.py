@@ -181,6 +181,7 @@ class VehicleInfo:
     name: str
     pose_source: str                      # scene | zenoh
     static: bool = False                  # scene-driven and never moving: its pose goes on /tf_static
+    ros_pose: str | None = None           # the scene's <rosPose> (odom:TOPIC | pose:TOPIC | tf:FRAME[@enu|@ned])
 
 
 def ros_name(name: str) -> str:
@@ -203,6 +204,17 @@ def check_poses(opts: Options, vehicles: Sequence[VehicleInfo]) -> None:
         if p.vehicle in seen:
             raise w.Ros2WireError("option", f"--ros-pose {p.vehicle}: given twice")
         seen.add(p.vehicle)
+
+
+def default_poses(opts: Options, vehicles: Sequence[VehicleInfo]) -> tuple[PoseInput, ...]:
+    """--ros-pose inputs; for every vehicle positioned from outside that none names, the scene's <rosPose>,
+    else `nav_msgs/Odometry` on `/<vehicle>/odom` (the topic a robot simulator's odometry plug-in publishes),
+    so a `poseSource zenoh` vehicle follows ROS with no option."""
+    named = {p.vehicle for p in opts.poses}
+    return opts.poses + tuple(
+        parse_pose_input(f"{v.name}={v.ros_pose}") if v.ros_pose
+        else PoseInput(v.name, "odom", f"/{ros_name(v.name)}/odom")
+        for v in vehicles if v.pose_source == "zenoh" and v.name not in named)
 
 
 # == what the bridge hands back =======================================================================
@@ -290,7 +302,7 @@ class Ros2Bridge:
                         "diag"))
         if opts.clock:
             self._pub(g.add("MP", SIM_NODE, "/", "/clock", "rosgraph_msgs/msg/Clock", QOS_CLOCK, "clock"))
-        for p in opts.poses:
+        for p in default_poses(opts, vehicles):
             if p.source == "tf":
                 self._tf_in[p.topic.strip("/")] = p
             else:

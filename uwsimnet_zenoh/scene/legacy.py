@@ -96,7 +96,8 @@ class LegacyVocabulary(XmlReader):
     # --- vehicles ------------------------------------------------------------------------------------
 
     def vehicle(self, el: _El) -> tuple[Vehicle, _El, list[dict[str, _El]]]:
-        k = self.kids(el, single=("name", "position", "geoPosition", "trajectory", "poseSource", "poseRate"),
+        k = self.kids(el, single=("name", "position", "geoPosition", "trajectory", "poseSource", "poseRate",
+                                  "rosPose"),
                       repeat=("CustomCommsDevice", "AcousticCommsDevice"), ignore=_VEHICLE_IGNORED)
         f = _Fields()
         name_el = self.need(k, "name")
@@ -117,6 +118,11 @@ class LegacyVocabulary(XmlReader):
         if (e := k.get("poseRate")) is not None:
             v, raw = self.number(e)
             f.set("pose_rate_hz", v, "poseRate", e, raw)
+        if (e := k.get("rosPose")) is not None:
+            text = self.text(e)
+            if not re.fullmatch(r"(odom|pose|tf):\S+", text):
+                self.fail(e, f"rosPose: expected odom:TOPIC, pose:TOPIC or tf:CHILD_FRAME[@enu|@ned], got {text!r}")
+            f.set("ros_pose", text, "rosPose", e)
         devices: list[Device] = []
         dev_els: list[dict[str, _El]] = []
         for d_el in sorted(k.all("CustomCommsDevice") + k.all("AcousticCommsDevice"), key=lambda e: e.sourceline or 0):

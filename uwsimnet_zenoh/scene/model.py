@@ -272,6 +272,7 @@ class Vehicle(_Model):
     trajectory: tuple[Waypoint, ...] = ()
     pose_source: Literal["scene", "zenoh"] = "scene"
     pose_rate_hz: float = Field(default=10.0, gt=0)
+    ros_pose: str | None = None           # under --ros2, for poseSource zenoh: odom:TOPIC | pose:TOPIC | tf:FRAME
     devices: tuple[Device, ...] = ()
 
     @field_validator("trajectory")
