@@ -77,6 +77,18 @@ def _wait_size(path: Path, n: int, p: subprocess.Popen, timeout: float = 60.0) -
         time.sleep(0.02)
 
 
+def _wait_record(path: Path, want, p: subprocess.Popen, timeout: float = 60.0) -> None:
+    """Until a whole line of the trace satisfies `want` (the run is where the test needs it)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        text = path.read_text() if path.exists() else ""
+        if any(want(json.loads(line)) for line in text[:text.rfind("\n") + 1].splitlines()):
+            return
+        assert p.poll() is None, p.communicate()
+        assert time.monotonic() < deadline, "the run wrote no such record"
+        time.sleep(0.05)
+
+
 @pytest.mark.parametrize("pure", ["0", "1"])
 def test_virtual_run_stopped_by_a_signal_ends_true_20_times(tmp_path, pure):
     """Compiled and pure Python: in pure Python a signal handler can run inside any Python code the engine
@@ -123,13 +135,16 @@ def test_realtime_run_stopped_by_a_signal_ends_true(tmp_path, sig):
             line = p.stdout.readline()
             assert line or p.poll() is None, p.communicate()
             assert time.monotonic() < deadline
-        time.sleep(0.3 + 0.05 * i)          # frames queued, on air, in reception (ca: 5/s)
+        running = time.monotonic()          # the clock started before "running" was printed
+        _wait_record(trace, lambda r: r["ev"] == "enq" and r.get("flow") == "ca", p)   # on disk within ~1 s
+        time.sleep(0.05 * i)                # a little further on each time: frames queued, on air, in reception
+        lapse = time.monotonic() - running
         p.send_signal(sig)
         out, err = p.communicate(timeout=60)
         assert p.returncode == 0, err
         assert "Traceback" not in err
         end = _check_stopped_trace(trace, sig.name)
-        assert 0.2 < end["t"] < 60
+        assert lapse <= end["t"] < 60       # the wall clock's time at the stop (speed 1), not the last event's
         assert f"stopped by {sig.name}" in out
         assert "ingress delay" not in out or "ms" in out
         m = flow_metrics(str(trace))
