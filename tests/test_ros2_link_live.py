@@ -55,6 +55,9 @@ def sim(tmp_path_factory):
                 p.p.wait(5)
 
 
+LATE_S = 0.5
+"""How late a realtime delivery may be on a loaded machine before the test calls it wrong (wall clock)."""
+
 def rules() -> list[L.TopicRule]:
     return [L.TopicRule("/cmd_vel", TWIST, "both", dst=2, priority=0, policy="fifo"),
             L.TopicRule("/camera/compressed", IMAGE, "both", dst=2, priority=9, policy="keep_last", depth=2)]
@@ -119,7 +122,9 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         formula = (DIST * PROP + len(frame[0]) * 8 / BITRATE + cfg.get("intrinsic_tx_s", 0.0)
                    + cfg["intrinsic_rx_s"])
         print(f"twist: {len(frame[0])} B on air, delay {(t1 - t0) / 1e9:.4f} s, formula {formula:.4f} s")
-        assert abs((t1 - t0) / 1e9 - formula) < 0.005, ((t1 - t0) / 1e9, formula)
+        # never early; the wall-clock error on a quiet machine is 2-3 ms (docs/ros2-link.md), but how late a
+        # realtime frame is depends on the machine's load, so only a frame held for no reason fails here
+        assert formula - 0.001 <= (t1 - t0) / 1e9 <= formula + LATE_S, ((t1 - t0) / 1e9, formula)
 
         # 2. a 20 kB CompressedImage crosses in fragments and arrives whole
         img = image_cdr(codec, 20_000)
@@ -136,7 +141,9 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         alone = (t1 - t0) / 1e9
         lat = (got[1][3] - t2) / 1e9
         print(f"twist behind the image: {lat:.4f} s, rise {lat - alone:.4f} s (one frame's air time {frame_air:.4f} s)")
-        assert lat - alone <= frame_air + 0.005          # the frame on air, plus loopback overheads
+        # the frame on air (0.1 s here), plus loopback overheads: 0.1005 s measured on a quiet machine; the image's
+        # ~160 frames would take 16 s, so a Twist that waited behind them rather than one frame stays far above
+        assert lat - alone <= frame_air + LATE_S
         # 4. malformed and unknown samples are counted and the link goes on
         robots.put(tw_a, b"\x07junk", attachment=w.encode_attachment(3, time.time_ns(), gid))
         robots.put(tw_a, cdr)                                                   # no attachment
