@@ -77,6 +77,7 @@ def main() -> int:
     try:
         trace.unlink(missing_ok=True)
         sim = start("uwsimnet", [py, "-m", "uwsimnet_zenoh.cli", "run", SCENE, "--clock", "realtime",
+                                 "--duration", f"{a.seconds + 10:g}",   # the demo's length, not the scene's 600 s
                                  "--listen", f"tcp/127.0.0.1:{a.port}", "--trace", str(trace)], sim_lines)
         ep, why = wait_ready(sim, sim_lines)
         if ep is None:
