@@ -98,6 +98,30 @@ def test_bad_seed_lists(bad):
         cp.parse_seeds(bad)
 
 
+def test_a_campaign_files_scheduler_is_not_connected_to_unconfirmed(tmp_path):
+    """A listening socket stands for the scheduler: without --scheduler naming it, sweep refuses in one line
+    and never connects (issue #41); `out` is relative to the file."""
+    import socket
+
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(1)
+        srv.settimeout(0.5)
+        addr = f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+        f = tmp_path / "c.toml"
+        f.write_text(f'scenes = ["{TWO_NODES}"]\nscheduler = "{addr}"\nout = "o"\n')
+        assert cp.load_campaign(f).out == tmp_path / "o"
+        r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "sweep", str(f)], capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert r.stderr.strip().splitlines() == [
+            f"{f}: scheduler {addr!r}: a campaign file does not connect to a scheduler on its own;"
+            f" confirm with --scheduler {addr} (or --scheduler local)"]
+        with pytest.raises(TimeoutError):
+            srv.accept()                    # nobody connected
+    assert not (tmp_path / "o").exists()
+
+
 # -- where runs execute does not change them ----------------------------------------------------------
 def _rows(out: Path) -> list[dict]:
     return [json.loads(p.read_text()) for p in sorted((out / "rows").glob("*.json"))]

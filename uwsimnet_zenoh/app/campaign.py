@@ -95,7 +95,7 @@ def load_campaign(path: str | os.PathLike[str]) -> Campaign:
         raise UserError(f"{p}: seeds must be a list of integers or a string like \"1-20\"")
     return Campaign(scenes=[str((base / s) if not Path(s).is_absolute() else s) for s in scenes],
                     sets={k: list(v) for k, v in sets.items()}, seeds=seeds,
-                    out=Path(doc.get("out", "out/sweep")), duration=doc.get("duration"),
+                    out=base / str(doc.get("out", "out/sweep")), duration=doc.get("duration"),
                     workers=int(doc.get("workers", 1)), scheduler=doc.get("scheduler"))
 
 

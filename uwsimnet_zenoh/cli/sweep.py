@@ -34,6 +34,10 @@ def run(a: argparse.Namespace) -> int:
         if a.set or a.seeds or a.duration is not None:
             raise UserError("uwsimnet sweep: with a campaign file, put --set/--seeds/--duration in the file")
         c = load_campaign(a.scenes[0])
+        if c.scheduler not in (None, "local") and a.scheduler != c.scheduler:
+            # Dask's handshake exchanges pickles: a file someone sent must not open that by itself
+            raise UserError(f"{a.scenes[0]}: scheduler {c.scheduler!r}: a campaign file does not connect to a"
+                            f" scheduler on its own; confirm with --scheduler {c.scheduler} (or --scheduler local)")
     else:
         sets: dict[str, list[str]] = {}
         for s in a.set:
