@@ -122,6 +122,38 @@ def test_a_campaign_files_scheduler_is_not_connected_to_unconfirmed(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_dry_run_lists_the_runs_and_runs_none(tmp_path):
+    out = tmp_path / "o"
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "sweep", str(TWO_NODES), "--seeds", "1-3",
+                        "--set", "device.*.bitrate=500,1000", "--out", str(out), "--dry-run"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.strip().splitlines()
+    assert len(lines) == 2 * 3 and all(" todo " in x for x in lines)
+    assert {x.split()[-1] for x in lines} == {"device.*.bitrate=500", "device.*.bitrate=1000"}
+    assert not out.exists()
+
+
+def test_an_interrupted_sweep_says_what_is_kept_and_how_to_resume(tmp_path):
+    import signal
+    import time
+
+    out = tmp_path / "o"
+    p = subprocess.Popen([sys.executable, "-m", "uwsimnet_zenoh.cli", "sweep", str(TWO_NODES), "--seeds",
+                          "1-5000", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (out / "rows").is_dir() or not any((out / "rows").glob("*.json")):
+        assert p.poll() is None, p.communicate()
+        assert time.monotonic() < deadline, "no run finished"
+        time.sleep(0.05)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130 and "Traceback" not in err, err
+    kept = len(list((out / "rows").glob("*.json")))
+    assert err.strip().splitlines()[-1] == (f"uwsimnet sweep: interrupted; {kept} finished run(s) kept in {out}/rows;"
+                                            " the same command resumes with the missing runs only")
+
+
 # -- where runs execute does not change them ----------------------------------------------------------
 def _rows(out: Path) -> list[dict]:
     return [json.loads(p.read_text()) for p in sorted((out / "rows").glob("*.json"))]

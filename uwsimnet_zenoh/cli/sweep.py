@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..app.campaign import Campaign, execute, load_campaign, parse_seeds, parse_set, plain_progress
+from ..app.campaign import Campaign, execute, load_campaign, parse_seeds, parse_set, plain_progress, specs
 from ..errors import UserError
 
 
@@ -26,6 +26,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, help="worker processes (default 1; with --scheduler local: Dask workers)")
     p.add_argument("--scheduler", help="run on Dask: 'local' (a LocalCluster) or a scheduler address tcp://HOST:8786")
     p.add_argument("--out", help="output folder (default out/sweep; re-running resumes it)")
+    p.add_argument("--dry-run", action="store_true", help="list the runs (and which have a row already); run none")
     p.set_defaults(fn=run)
 
 
@@ -59,6 +60,30 @@ def run(a: argparse.Namespace) -> int:
         raise UserError(f"--workers {c.workers}: expected 1..512")
     if c.duration is not None and not 0 < c.duration < float("inf"):
         raise UserError("--duration must be a number of seconds > 0")
+    if a.dry_run:
+        done = {f.stem for f in (c.out / "rows").glob("*.json")}
+        runs = specs(c)
+        for r in runs:
+            params = " ".join(f"{k}={v}" for k, v in r["overrides"].items())
+            state = "done" if r["key"] in done else "todo"
+            print(f"{r['key']} {state} {r['scene']} seed {r['seed']} {params}".rstrip())
+        print(f"uwsimnet sweep: {len(runs)} runs, {sum(r['key'] in done for r in runs)} with a row in {c.out}/rows",
+              file=sys.stderr)
+        return 0
+    try:
+        report = _execute(c)
+    except KeyboardInterrupt:
+        kept = len(list((c.out / "rows").glob("*.json")))
+        print(f"uwsimnet sweep: interrupted; {kept} finished run(s) kept in {c.out}/rows; the same command"
+              " resumes with the missing runs only", file=sys.stderr)
+        return 130
+    print((c.out / "summary.md").read_text())
+    print(f"uwsimnet sweep: {report['runs']} runs ({report['ran']} run now, {report['reused']} from an earlier"
+          f" sweep, {report['failed']} failed); results in {c.out}/", file=sys.stderr)
+    return 1 if report["failed"] else 0
+
+
+def _execute(c: Campaign) -> dict:
     if sys.stderr.isatty():
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -68,10 +93,5 @@ def run(a: argparse.Namespace) -> int:
 
             def show(n: int, total: int, row: dict) -> None:
                 bar.update(task, completed=n, total=total)
-            report = execute(c, on_progress=show)
-    else:
-        report = execute(c, on_progress=plain_progress)
-    print((c.out / "summary.md").read_text())
-    print(f"uwsimnet sweep: {report['runs']} runs ({report['ran']} run now, {report['reused']} from an earlier"
-          f" sweep, {report['failed']} failed); results in {c.out}/", file=sys.stderr)
-    return 1 if report["failed"] else 0
+            return execute(c, on_progress=show)
+    return execute(c, on_progress=plain_progress)
