@@ -221,13 +221,13 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     v.set_defaults(fn=cmd_validate)
 
     rep = sub.add_parser("report", help="per-flow metrics of a trace")
-    rep.add_argument("trace")
+    rep.add_argument("trace", help="JSONL trace of a run (run --trace)")
     rep.add_argument("--json", action="store_true")
     rep.set_defaults(fn=cmd_report)
 
     pl = sub.add_parser("plot", help="PNG figures of a trace")
-    pl.add_argument("trace")
-    pl.add_argument("-o", "--out", default="figures")
+    pl.add_argument("trace", help="JSONL trace of a run (run --trace)")
+    pl.add_argument("-o", "--out", default="figures", help="folder for the PNGs (default figures)")
     pl.add_argument("--scene", help="the run's scene: adds the TL field of its bellhop links (docs/ocean.md)")
     pl.set_defaults(fn=cmd_plot)
 
