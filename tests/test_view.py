@@ -402,7 +402,10 @@ def test_page_shows_a_live_run(browser, live, tmp_path):
         assert browser.js("return uwsimnetView.counters('alpha-m').tx") >= 1
         shot(browser, tmp_path, "view-live.png")
         # pause and resume through the control API, from the page's buttons
+        browser.wait("return !document.getElementById('pause').disabled", what="control allowed")
         browser.click("#pause")
+        browser.wait("return /^paused at t = /.test(document.getElementById('ctlmsg').textContent)",
+                     what="the confirmation")
         browser.wait("return !document.getElementById('paused').hidden", what="paused")
         time.sleep(0.3)                                       # clock samples sent before the pause are in
         t_paused = browser.js("return uwsimnetView.T")
@@ -411,6 +414,10 @@ def test_page_shows_a_live_run(browser, live, tmp_path):
         assert w.control("state")["paused"] is True
         browser.click("#resume")
         browser.wait("return document.getElementById('paused').hidden", what="resumed")
+        browser.wait("return /^resumed at t = /.test(document.getElementById('ctlmsg').textContent)",
+                     what="the confirmation")
+        time.sleep(0.5)                                       # many update batches later: still there
+        assert browser.js("return document.getElementById('ctlmsg').textContent").startswith("resumed at t = ")
         browser.wait(f"return uwsimnetView.T > {t_paused} + 0.2", what="time moves again")
     # the trace (written by the broker, published on the trace keys the page reads) says the same
     deadline = time.monotonic() + WAIT

@@ -332,10 +332,12 @@
     $("frames").innerHTML = items.join("");
     $("clock").textContent = `t = ${T.toFixed(3)} s`;
   }
-  function ctlButtons() {
+  function ctlButtons() {                          // a message stays until the next one (never wiped by updates)
     const can = S.mode === "live" && !!S.doc.control;
     $("pause").disabled = !can; $("resume").disabled = !can;
-    $("ctlmsg").textContent = S.mode === "live" && !can ? "control not allowed" : "";
+    if (can === S.ctlCan) return;
+    if (S.ctlCan !== undefined || !can) $("ctlmsg").textContent = S.mode !== "live" ? "" : can ? "control allowed" : "control not allowed";
+    S.ctlCan = can;
   }
 
   // -- time ----------------------------------------------------------------------------------------
