@@ -377,6 +377,12 @@ def test_live_document_from_a_second_viewer_without_the_scene(live, tmp_path):
         assert view.stop() == 0, view.text()
 
 
+def test_a_world_nobody_serves_is_one_line_naming_the_worlds_seen(live):
+    """`--world <typo>`: no page that says "connected" over nothing; exit 2, the worlds there are named."""
+    err = _one_line_exit_2(["view", "--connect", live["endpoint"], "--world", WORLD + "x", "--port", "0"], 120)
+    assert f"no world '{WORLD}x'" in err and f"worlds seen: {WORLD}" in err, err
+
+
 @needs_browser
 def test_page_shows_a_live_run(browser, live, tmp_path):
     from uwsimnet_gli import World

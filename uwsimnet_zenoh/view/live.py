@@ -32,15 +32,32 @@ def client_session(connect: list[str] | None, config_file: str | None) -> zenoh.
     return open_raw(conf)
 
 
-def discover_world(session: zenoh.Session, timeout: float = 2.0) -> str:
+def seen_worlds(session: zenoh.Session, timeout: float = 2.0) -> set[str]:
+    """Worlds that answer control/state (an operator) or have a modem's driver token (anyone may see those)."""
     found = set()
-    for r in session.get(f"{wire.PREFIX}/*/control/state", timeout=timeout):
-        if r.ok is not None:
-            k = wire.parse(str(r.ok.key_expr))
-            if k is not None:
-                found.add(k.world)
+    for key, get in ((f"{wire.PREFIX}/*/control/state", session.get),
+                     (f"{wire.PREFIX}/*/modem/*/driver/*", session.liveliness().get)):
+        with contextlib.suppress(Exception):                 # not allowed to ask: the other way tells
+            for r in get(key, timeout=timeout):
+                if r.ok is not None:
+                    k = wire.parse(str(r.ok.key_expr))
+                    if k is not None:
+                        found.add(k.world)
+    return found
+
+
+def check_world(session: zenoh.Session, world: str, restricted: bool) -> None:
+    """BusError (one line, naming the worlds seen) if no broker serves `world`.  A `restricted` identity
+    (a --zenoh-config: a visitor reads traces only) that sees no world at all is let through: it cannot tell."""
+    found = seen_worlds(session)
+    if world not in found and (found or not restricted):
+        raise BusError(f"no world {world!r} here (worlds seen: {', '.join(sorted(found)) or 'none'})")
+
+
+def discover_world(session: zenoh.Session, timeout: float = 2.0) -> str:
+    found = seen_worlds(session, timeout)
     if len(found) != 1:
-        raise BusError("no world answers control/state: name it with --world" if not found
+        raise BusError("no world answers: name it with --world" if not found
                        else f"several worlds answer ({', '.join(sorted(found))}): name one with --world")
     return found.pop()
 
