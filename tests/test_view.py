@@ -507,3 +507,112 @@ def test_documents_are_json_even_with_non_finite_numbers():
 
     doc = {"frames": [{"outcomes": {"b": {"dist": float("nan")}}}], "t": float("inf"), "flow": "NaN"}
     assert json.loads(_json_bytes(doc)) == {"frames": [{"outcomes": {"b": {"dist": None}}}], "t": None, "flow": "NaN"}
+
+
+# -- #41: data is text, the page is its own origin, memory is bounded -------------------------------
+XSS = "<img src=x onerror=\"window.pwned=1\">"
+
+
+def test_a_trace_whose_meta_carries_markup_is_refused_on_read(tmp_path):
+    meta = {"ev": "meta", "devices": {"a": {"vehicle": "v", "address": 1, "tx_channel": XSS, "rx_channel": 0}}}
+    (tmp_path / "x.jsonl").write_text(json.dumps(meta) + "\n")
+    msg = _one_line_exit_2(["view", str(tmp_path / "x.jsonl"), "--port", "0"])
+    assert "tx_channel" in msg and "not an integer" in msg, msg
+
+
+@contextlib.contextmanager
+def _served(server):
+    """A ViewServer on a free loopback port in a thread of its own; its URL."""
+    import asyncio
+    import threading
+
+    from uwsimnet_zenoh.view.server import serve_forever
+
+    ready: list[str] = []
+    holder: dict = {}
+
+    def run() -> None:
+        async def main() -> None:
+            holder["stop"], holder["loop"] = asyncio.Event(), asyncio.get_running_loop()
+            await serve_forever(server, "127.0.0.1", 0, ready.append, holder["stop"])
+        asyncio.run(main())
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    deadline = time.monotonic() + WAIT
+    while not ready and time.monotonic() < deadline:
+        time.sleep(0.05)
+    try:
+        yield ready[0]
+    finally:
+        holder["loop"].call_soon_threadsafe(holder["stop"].set)
+        th.join(10)
+
+
+def _forged_live_state() -> LiveState:
+    """What a forged `modem/*/info` reply and a forged trace sample on Zenoh feed the page (LiveSource's
+    validation lets strings through where the wire allows them)."""
+    st = LiveState(XSS)
+    st.merge_state({"modems": {XSS: {"vehicle": XSS, "address": XSS, "tx_channel": XSS, "rx_channel": 0}}})
+    st.set_control(True)
+    st.trace({"ev": "tx", "t": 0.5, "dev": XSS, "src": 1, "dst": 255, "seq": 7, "size": 4, "ch": XSS,
+              "kind": XSS, "id": 1})
+    return st
+
+
+@needs_browser
+def test_injected_markup_is_shown_as_text(browser):
+    from uwsimnet_zenoh.view.server import ViewServer
+
+    with _served(ViewServer(live=_forged_live_state())) as url:
+        browser.get(url)
+        browser.wait("return window.uwsimnetView && uwsimnetView.ready && uwsimnetView.modems() === 1",
+                     what="the forged modem")
+        browser.wait("return document.querySelector('#frames li')", what="the forged frame in the list")
+        assert browser.js("return document.querySelectorAll('img').length") == 0
+        assert browser.js("return window.pwned === undefined")
+        assert XSS in browser.js("return document.getElementById('modems').textContent")
+        assert XSS in browser.js("return document.getElementById('frames').textContent")
+
+
+def test_foreign_origin_and_host_are_refused():
+    import urllib.error
+    import urllib.request
+
+    from uwsimnet_zenoh.view.server import ViewServer
+
+    calls: list[str] = []
+    st = LiveState("w")
+    st.set_control(True)
+    server = ViewServer(live=st, control=lambda op: calls.append(op) or {"ok": True, "t": 1.0})
+
+    def status(url: str, method: str = "GET", **headers: str) -> int:
+        req = urllib.request.Request(url, method=method, headers=headers, data=b"" if method == "POST" else None)
+        try:
+            with urllib.request.urlopen(req, timeout=WAIT) as r:
+                return r.status
+        except urllib.error.HTTPError as e:
+            return e.code
+
+    with _served(server) as url:
+        port = url.rstrip("/").rsplit(":", 1)[1]
+        assert status(url + "api/doc") == 200
+        assert status(url + "api/doc", Host=f"evil.example:{port}") == 403          # DNS rebinding
+        assert status(url + "api/control/pause", "POST", Origin="http://evil.example") == 403
+        assert calls == []                                                          # the run was not paused
+        ws = {"Connection": "Upgrade", "Upgrade": "websocket", "Sec-WebSocket-Version": "13",
+              "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ=="}
+        assert status(url + "ws", Origin="http://evil.example", **ws) == 403
+        assert status(url + "api/control/pause", "POST", Origin=f"http://127.0.0.1:{port}") == 200
+        assert calls == ["pause"]
+        assert server.refused == 3
+
+
+def test_a_flood_of_pose_names_is_bounded_and_counted():
+    from uwsimnet_zenoh.view.state import MAX_VEHICLES
+
+    st = LiveState("w")
+    for i in range(20000):
+        st.pose(f"v{i}", (0.0, 0.0, 0.0), float(i))
+    assert len(st.poses) == len(st.vehicles) == MAX_VEHICLES
+    assert st.refused_vehicles == 20000 - MAX_VEHICLES

@@ -68,7 +68,11 @@ class ViewServer:
         self._pending = False
         self.clients = 0
         self._sockets: set[web.WebSocketResponse] = set()
-        self.app = web.Application()
+        self.hosts: set[str] = set()
+        """Host headers this page answers (set by start(): its own address, localhost): anything else is a
+        DNS-rebinding name or a foreign page, refused (#41)."""
+        self.refused = 0
+        self.app = web.Application(middlewares=[self._same_origin])
         self.app.on_shutdown.append(self._close_sockets)
         self.app.router.add_get("/", self._index)
         self.app.router.add_get("/api/doc", self._api_doc)
@@ -104,12 +108,25 @@ class ViewServer:
             raise
         server = site._server                                 # noqa: SLF001 - the only way to the bound port
         sock = server.sockets[0] if server is not None and server.sockets else None
-        return runner, (sock.getsockname()[1] if sock is not None else port)
+        bound = sock.getsockname()[1] if sock is not None else port
+        names = {host, f"[{host}]" if ":" in host else host, "localhost", "127.0.0.1", "[::1]"}
+        self.hosts = {f"{n.lower()}:{bound}" for n in names}
+        return runner, bound
 
     async def _close_sockets(self, _app: web.Application) -> None:
         for ws in list(self._sockets):
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(ws.close(code=1001, message=b"server shutdown"), 2.0)
+
+    @web.middleware
+    async def _same_origin(self, req: web.Request, handler: Callable[[web.Request], Any]) -> web.StreamResponse:
+        """403 for a foreign Host (DNS rebinding) and for a foreign Origin (another site's page or socket)."""
+        origin = req.headers.get("Origin")
+        if req.host.lower() not in self.hosts or (origin is not None and origin.lower() not in
+                                                   {f"http://{h}" for h in self.hosts}):
+            self.refused += 1
+            return web.Response(status=403, text="foreign Host or Origin\n")
+        return await handler(req)
 
     # -- handlers ----------------------------------------------------------------------------------
     async def _index(self, _req: web.Request) -> web.StreamResponse:

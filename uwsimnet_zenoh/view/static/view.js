@@ -25,7 +25,12 @@
     }
     return ans;
   }
-  function esc(s) { return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
+  function el(tag, cls, ...kids) {                  // an element whose data is text, never markup (#41)
+    const e = document.createElement(tag);
+    if (cls) e.className = cls;
+    e.append(...kids.map((x) => (x instanceof Node ? x : String(x))));
+    return e;
+  }
   function perColor(p) {                             // 0 green, 0.5 yellow, 1 red
     p = Math.max(0, Math.min(1, p));
     const a = [46, 204, 113], b = [241, 196, 15], c = [231, 76, 60];
@@ -299,14 +304,15 @@
   // -- panels --------------------------------------------------------------------------------------
   function buildModems() {
     const tb = $("modems").tBodies[0];
-    tb.innerHTML = "";
+    tb.replaceChildren();
     for (const [id, d] of Object.entries(S.doc.devices).sort()) {
       const tr = document.createElement("tr");
       tr.dataset.dev = id;
       const kind = d.kind == null ? "none" : d.kind;
-      tr.innerHTML = `<td title="vehicle ${esc(d.vehicle)}">${esc(id)}</td><td class="kind"><span class="badge ${esc(kind)}">${esc(kind)}</span></td>` +
-        `<td>${d.address ?? ""}</td><td>${d.tx_channel ?? ""}</td><td class="enq"></td><td class="tx"></td><td class="rx"></td>` +
-        `<td class="drop"></td><td><span class="fifo"><span></span></span> <span class="fifob"></span></td>`;
+      const badge = el("span", "badge " + (["sim", "real", "none"].includes(kind) ? kind : "other"), kind);
+      tr.append(Object.assign(el("td", "", id), { title: `vehicle ${d.vehicle}` }), el("td", "kind", badge),
+        el("td", "", d.address ?? ""), el("td", "", d.tx_channel ?? ""), el("td", "enq"), el("td", "tx"),
+        el("td", "rx"), el("td", "drop"), el("td", "", el("span", "fifo", el("span")), " ", el("span", "fifob")));
       tb.appendChild(tr);
     }
     $("nveh").textContent = Object.keys(S.doc.vehicles).length;
@@ -324,12 +330,14 @@
     const i = lastAtOrBefore(S.frames, T, (f) => f.t);
     for (let k = i; k >= 0 && items.length < LIST; k--) {
       const f = S.frames[k], st = frameStatus(f, T);
-      const outs = st.outs.map(([dev, o]) => `<span class="o-${COLORS[o] ? o : "other"}">${esc(dev)} ${esc(o)}</span>`).join(", ");
-      items.push(`<li data-id="${f.id}" data-dev="${esc(f.dev)}" data-seq="${f.seq}" data-kind="${esc(f.kind)}" data-state="${st.state}"` +
-        ` data-outcomes="${esc(st.outs.map(([dev, o]) => dev + "=" + o).join(" "))}">${f.t.toFixed(3)} ${esc(f.dev)} → ${f.dst}` +
-        ` #${f.seq}${f.attempt > 1 && f.kind === "data" ? " (try " + f.attempt + ")" : ""} ${esc(f.kind)}${st.state === "air" ? " on air" : ""} ${outs}</li>`);
+      const li = el("li", "", `${(+f.t).toFixed(3)} ${f.dev} → ${f.dst} #${f.seq}` +
+        `${f.attempt > 1 && f.kind === "data" ? " (try " + f.attempt + ")" : ""} ${f.kind}${st.state === "air" ? " on air" : ""} `);
+      Object.assign(li.dataset, { id: f.id, dev: f.dev, seq: f.seq, kind: f.kind, state: st.state,
+        outcomes: st.outs.map(([dev, o]) => dev + "=" + o).join(" ") });
+      st.outs.forEach(([dev, o], j) => li.append(j ? ", " : "", el("span", `o-${COLORS[o] ? o : "other"}`, `${dev} ${o}`)));
+      items.push(li);
     }
-    $("frames").innerHTML = items.join("");
+    $("frames").replaceChildren(...items);
     $("clock").textContent = `t = ${T.toFixed(3)} s`;
   }
   function ctlButtons() {                          // a message stays until the next one (never wiped by updates)
