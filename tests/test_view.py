@@ -315,6 +315,18 @@ def test_page_replays_a_trace(browser, replay_trace, tmp_path):
         browser.js(f"uwsimnetView.setTime({tx['t'] + 2.0})")
         f = browser.wait(f"return uwsimnetView.frame('{tx['dev']}', {tx['seq']}, 'data')")
         assert f["state"] == "done" and dict(f["outs"]) == want
+        # zoom about the centre: the pixel distance between two vehicles grows by the zoom factor (1.5);
+        # Fit puts the map back
+        a, b = (v.name for v in scene.vehicles[:2])
+        dist = (f"const p = uwsimnetView.pixel('{a}'), q = uwsimnetView.pixel('{b}');"
+                " return Math.hypot(p[0] - q[0], p[1] - q[1])")
+        d0 = browser.js(dist)
+        browser.click("#zoomin")
+        browser.wait("return uwsimnetView.zoom === 1.5", what="zoomed in")
+        assert browser.js(dist) == pytest.approx(1.5 * d0, rel=1e-9)
+        browser.click("#fit")
+        browser.wait("return uwsimnetView.zoom === 1", what="fitted")
+        assert browser.js(dist) == pytest.approx(d0, rel=1e-9)
         # play at 10x: time moves by itself
         browser.js("uwsimnetView.setTime(0); uwsimnetView.play(10)")
         browser.wait("return uwsimnetView.T > 2", what="playing moves time")

@@ -196,14 +196,25 @@
 
   // -- drawing -------------------------------------------------------------------------------------
   const canvas = $("map"), ctx = canvas.getContext("2d");
-  function toPx(p) {
-    const [x0, y0, x1, y1] = S.bounds, W = canvas.width, H = canvas.height;
-    const s = Math.min(W / (x1 - x0), H / (y1 - y0));
-    const ox = (W - s * (x1 - x0)) / 2, oy = (H - s * (y1 - y0)) / 2;
-    return [ox + (p[0] - x0) * s, H - (oy + (p[1] - y0) * s)];
-  }
-  function drawGrid() {
+  const V = { zoom: 1, dx: 0, dy: 0 };               // the user's zoom and pan (px) over the fitted map
+  function scale() {
     const [x0, y0, x1, y1] = S.bounds;
+    return Math.min(canvas.width / (x1 - x0), canvas.height / (y1 - y0)) * V.zoom;
+  }
+  function toPx(p) {                                   // fitted and centred, then zoomed about the centre and panned
+    const [x0, y0, x1, y1] = S.bounds, W = canvas.width, H = canvas.height, s = scale();
+    const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+    return [W / 2 + V.dx + (p[0] - cx) * s, H / 2 + V.dy - (p[1] - cy) * s];
+  }
+  function zoomAt(f, px, py) {                         // zoom by f keeping the map point under (px, py) still
+    const nz = Math.max(0.05, Math.min(1e4, V.zoom * f)), k = nz / V.zoom;
+    const W = canvas.width / 2, H = canvas.height / 2;
+    V.dx = (px - W) - (px - W - V.dx) * k; V.dy = (py - H) - (py - H - V.dy) * k; V.zoom = nz;
+  }
+  function drawGrid() {                               // metric axes only where positions are real (--scene)
+    if (!S.doc.positions) return;
+    const W = canvas.width, H = canvas.height, s = scale(), [cx, cy] = [(S.bounds[0] + S.bounds[2]) / 2, (S.bounds[1] + S.bounds[3]) / 2];
+    const x0 = cx - (W / 2 + V.dx) / s, x1 = cx + (W / 2 - V.dx) / s, y0 = cy - (H / 2 - V.dy) / s, y1 = cy + (H / 2 + V.dy) / s;
     const span = Math.max(x1 - x0, y1 - y0);
     const step = Math.pow(10, Math.floor(Math.log10(span / 4)));
     ctx.strokeStyle = "#1a3350"; ctx.lineWidth = 1; ctx.fillStyle = "#4f6f8f"; ctx.font = "10px sans-serif";
@@ -391,6 +402,23 @@
     if (S.playing && S.T >= S.doc.t1) S.T = S.doc.t0;
     $("play").textContent = S.playing ? "Stop" : "Play";
   });
+  canvas.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    const r = canvas.getBoundingClientRect();
+    zoomAt(Math.exp(-e.deltaY * 0.0015), (e.clientX - r.left) * canvas.width / r.width, (e.clientY - r.top) * canvas.height / r.height);
+  }, { passive: false });
+  let drag = null;
+  canvas.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; });
+  window.addEventListener("mouseup", () => { drag = null; });
+  window.addEventListener("mousemove", (e) => {
+    if (!drag) return;
+    const r = canvas.getBoundingClientRect();
+    V.dx += (e.clientX - drag[0]) * canvas.width / r.width; V.dy += (e.clientY - drag[1]) * canvas.height / r.height;
+    drag = [e.clientX, e.clientY];
+  });
+  $("zoomin").addEventListener("click", () => zoomAt(1.5, canvas.width / 2, canvas.height / 2));
+  $("zoomout").addEventListener("click", () => zoomAt(1 / 1.5, canvas.width / 2, canvas.height / 2));
+  $("fit").addEventListener("click", () => { V.zoom = 1; V.dx = 0; V.dy = 0; });
   $("speed").addEventListener("change", (e) => { S.speed = parseFloat(e.target.value); });
   $("follow").addEventListener("click", () => { S.follow = true; });
   for (const op of ["pause", "resume"]) {
@@ -434,6 +462,8 @@
     modems: () => Object.keys(S.doc.devices).length,
     kinds: () => Object.fromEntries(Object.entries(S.doc.devices).map(([k, d]) => [k, d.kind])),
     position: (v) => posAt(v, S.T),
+    pixel: (v) => toPx(posAt(v, S.T)),
+    get zoom() { return V.zoom; },
     frame: (dev, seq, kind) => {
       for (let k = S.frames.length - 1; k >= 0; k--) {
         const f = S.frames[k];
