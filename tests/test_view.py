@@ -628,3 +628,19 @@ def test_a_flood_of_pose_names_is_bounded_and_counted():
         st.pose(f"v{i}", (0.0, 0.0, 0.0), float(i))
     assert len(st.poses) == len(st.vehicles) == MAX_VEHICLES
     assert st.refused_vehicles == 20000 - MAX_VEHICLES
+
+
+def test_half_open_connections_are_closed():
+    """A connection that sends nothing, or half a request and then nothing, is closed after the idle timeout."""
+    from uwsimnet_zenoh.view.server import ViewServer
+
+    server = ViewServer(doc={"mode": "replay"})
+    server.idle_timeout = 1.0
+    with _served(server) as url:
+        port = int(url.rstrip("/").rsplit(":", 1)[1])
+        for first in (b"", b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n"):
+            with socket.create_connection(("127.0.0.1", port), timeout=WAIT) as c:
+                c.sendall(first)
+                t0 = time.monotonic()
+                assert c.recv(1) == b""                 # closed by the server (a timeout here raises instead)
+                assert time.monotonic() - t0 >= 0.9

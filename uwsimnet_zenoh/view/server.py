@@ -29,6 +29,9 @@ from .state import LiveState
 STATIC = Path(__file__).with_name("static")
 BATCH_S = 0.05
 """A WebSocket task collects updates for this long before sending them as one message."""
+IDLE_TIMEOUT_S = 15.0
+"""An HTTP connection that sends no complete request for this long (silent, half-open, or one header a
+minute) is closed (#41: they used to stay open forever)."""
 SEND_TIMEOUT_S = 10.0
 """A browser that takes longer than this to take one message is dropped."""
 
@@ -72,6 +75,7 @@ class ViewServer:
         """Host headers this page answers (set by start(): its own address, localhost): anything else is a
         DNS-rebinding name or a foreign page, refused (#41)."""
         self.refused = 0
+        self.idle_timeout = IDLE_TIMEOUT_S
         self.app = web.Application(middlewares=[self._same_origin])
         self.app.on_shutdown.append(self._close_sockets)
         self.app.router.add_get("/", self._index)
@@ -98,7 +102,7 @@ class ViewServer:
         self._loop = asyncio.get_running_loop()
         if self.live is not None:
             self.live.listeners.append(self._on_change)
-        runner = web.AppRunner(self.app, access_log=None, shutdown_timeout=2.0)
+        runner = web.AppRunner(self.app, access_log=None, shutdown_timeout=2.0, keepalive_timeout=self.idle_timeout)
         await runner.setup()
         site = web.TCPSite(runner, host, port, reuse_address=False)
         try:
