@@ -315,6 +315,14 @@ def test_page_replays_a_trace(browser, replay_trace, tmp_path):
         browser.js(f"uwsimnetView.setTime({tx['t'] + 2.0})")
         f = browser.wait(f"return uwsimnetView.frame('{tx['dev']}', {tx['seq']}, 'data')")
         assert f["state"] == "done" and dict(f["outs"]) == want
+        # the modem filter: only frames sent or heard by that modem stay in the list
+        browser.js("const s = document.getElementById('fdev'); s.value = 'buoy-acomm';"
+                   " s.dispatchEvent(new Event('change'))")
+        buoy = "li.dataset.dev === 'buoy-acomm' || li.dataset.outcomes.includes('buoy-acomm=')"
+        rows = "const l = [...document.querySelectorAll('#frames li')]; return l.length && "
+        assert browser.wait(rows + f"l.every(li => {buoy}) && l.length", what="only buoy-acomm's frames") >= 1
+        browser.js("const s = document.getElementById('fdev'); s.value = ''; s.dispatchEvent(new Event('change'))")
+        browser.wait(rows + f"l.some(li => !({buoy}))", what="the others back without the filter")
         # zoom about the centre: the pixel distance between two vehicles grows by the zoom factor (1.5);
         # Fit puts the map back
         a, b = (v.name for v in scene.vehicles[:2])

@@ -5,7 +5,7 @@
 (function () {
   const HOLD = 1.5;          // s of simulation time an outcome stays drawn at its receiver
   const TRAIL = 60;          // s of trail behind each vehicle
-  const LIST = 14;           // frames in the list
+  const LIST = 40;           // frames in the list (the latest that pass the filters)
   const CAP = { frames: 4000, events: 5000, poses: 3000 };
   const COLORS = { rx: "#2ecc71", col: "#e74c3c", prop: "#b0b0b0", mult: "#ff8c1a", range: "#7f8c8d" };
   const $ = (id) => document.getElementById(id);
@@ -326,6 +326,12 @@
         el("td", "rx"), el("td", "drop"), el("td", "", el("span", "fifo", el("span")), " ", el("span", "fifob")));
       tb.appendChild(tr);
     }
+    for (const [sel, vals] of [["fdev", Object.keys(S.doc.devices).sort()],
+      ["fch", [...new Set(Object.values(S.doc.devices).map((d) => d.tx_channel).filter((c) => c != null).map(String))].sort()]]) {
+      const cur = $(sel).value;
+      $(sel).replaceChildren(el("option", "", "all"), ...vals.map((v) => el("option", "", v)));
+      $(sel).options[0].value = ""; $(sel).value = vals.includes(cur) ? cur : "";
+    }
     $("nveh").textContent = Object.keys(S.doc.vehicles).length;
     $("nmod").textContent = Object.keys(S.doc.devices).length;
   }
@@ -339,8 +345,11 @@
     }
     const items = [];
     const i = lastAtOrBefore(S.frames, T, (f) => f.t);
+    const fl = { dev: $("fdev").value, ch: $("fch").value, kind: $("fkind").value, out: $("fout").value };
     for (let k = i; k >= 0 && items.length < LIST; k--) {
       const f = S.frames[k], st = frameStatus(f, T);
+      if ((fl.dev && f.dev !== fl.dev && !st.outs.some(([d]) => d === fl.dev)) || (fl.ch && String(f.ch) !== fl.ch) ||
+          (fl.kind && f.kind !== fl.kind) || (fl.out && (fl.out === "air" ? st.state !== "air" : !st.outs.some(([, o]) => o === fl.out)))) continue;
       const li = el("li", "", `${(+f.t).toFixed(3)} ${f.dev} → ${f.dst} #${f.seq}` +
         `${f.attempt > 1 && f.kind === "data" ? " (try " + f.attempt + ")" : ""} ${f.kind}${st.state === "air" ? " on air" : ""} `);
       Object.assign(li.dataset, { id: f.id, dev: f.dev, seq: f.seq, kind: f.kind, state: st.state,
