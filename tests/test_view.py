@@ -315,6 +315,10 @@ def test_page_replays_a_trace(browser, replay_trace, tmp_path):
         browser.js(f"uwsimnetView.setTime({tx['t'] + 2.0})")
         f = browser.wait(f"return uwsimnetView.frame('{tx['dev']}', {tx['seq']}, 'data')")
         assert f["state"] == "done" and dict(f["outs"]) == want
+        browser.wait(f"return document.querySelector('{sel}[data-state=\"done\"]')", what="the frame done")
+        browser.click(sel)                                  # its details: the outcomes the trace has
+        detail = browser.wait("return document.getElementById('detail').textContent", what="the frame's details")
+        assert all(f"  {dev}: {o} at " in detail for dev, o in want.items()), detail
         # the modem filter: only frames sent or heard by that modem stay in the list
         browser.js("const s = document.getElementById('fdev'); s.value = 'buoy-acomm';"
                    " s.dispatchEvent(new Event('change'))")

@@ -357,7 +357,8 @@
       st.outs.forEach(([dev, o], j) => li.append(j ? ", " : "", el("span", `o-${COLORS[o] ? o : "other"}`, `${dev} ${o}`)));
       items.push(li);
     }
-    $("frames").replaceChildren(...items);
+    const sig = items.map((li) => li.textContent + li.dataset.state).join("\n");
+    if (sig !== S.listSig) { S.listSig = sig; $("frames").replaceChildren(...items); }   // unchanged: clickable
     $("clock").textContent = `t = ${T.toFixed(3)} s`;
   }
   function ctlButtons() {                          // a message stays until the next one (never wiped by updates)
@@ -428,6 +429,13 @@
   $("zoomin").addEventListener("click", () => zoomAt(1.5, canvas.width / 2, canvas.height / 2));
   $("zoomout").addEventListener("click", () => zoomAt(1 / 1.5, canvas.width / 2, canvas.height / 2));
   $("fit").addEventListener("click", () => { V.zoom = 1; V.dx = 0; V.dy = 0; });
+  $("frames").addEventListener("click", (e) => {     // a frame's details, from the document (as text)
+    const li = e.target.closest("li"), f = li && S.framesById.get(+li.dataset.id);
+    if (!f) return;
+    const outs = Object.entries(f.outcomes).map(([d, o]) => `  ${d}: ${o.outcome} at ${(+o.t).toFixed(6)} s`);
+    $("detail").textContent = [`frame ${f.dev} → ${f.dst} #${f.seq} ${f.kind} (try ${f.attempt}), channel ${f.ch}`,
+      `sent at ${(+f.t).toFixed(6)} s`, "outcomes:", ...(outs.length ? outs : ["  none yet"])].join("\n");
+  });
   $("speed").addEventListener("change", (e) => { S.speed = parseFloat(e.target.value); });
   $("follow").addEventListener("click", () => { S.follow = true; });
   for (const op of ["pause", "resume"]) {
