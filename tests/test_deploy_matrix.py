@@ -69,6 +69,7 @@ ADDRESS = {"a": 1, "b": 2, "y": 3, "z": 4}
 IDENTITIES = [
     {"name": "brk", "role": "broker", "host": "h1"},
     {"name": "vis", "role": "visitor", "host": "h1"},
+    {"name": "ops", "role": "operator", "host": "h1"},
     {"name": "emu-z", "role": "driver", "host": "h2", "modems": ["z"]},
     {"name": "drv-y", "role": "driver", "host": "h2", "modems": ["y"]},
     {"name": "app-a", "role": "app", "host": "h3", "modems": ["a"], "vehicles": ["va"]},
@@ -366,7 +367,7 @@ def test_lab_matrix(lab: Lab) -> None:
     assert frame["text"] == "hello-b" and frame["src"] == ADDRESS["a"]
     assert trace.proc.wait(WAIT) == 0, trace.output()
     assert json.loads(trace.wait_for('"ev"'))["ev"]
-    state, _ = parallel(lambda: lab.gli("app-a", "control", "state"),
+    state, _ = parallel(lambda: lab.gli("ops", "control", "state"),
                         lambda: ok(lab.gli("app-b", "vehicle", "vb", "waypoint=[20,0,0]")))
     assert json.loads(ok(state))["world"] == WORLD
     until(lambda: info(lab, "app-b", "b")["position"][0] > 10.5, "vb moving to its waypoint")
@@ -383,6 +384,11 @@ def test_lab_matrix(lab: Lab) -> None:
         (lambda: lab.gli("vis", "send", "a", "2", "x"), "vis", "publish uwsimnet/lab/modem/a/tx"),
         (lambda: lab.gli("vis", "info", "a"), "vis", "query uwsimnet/lab/modem/a/info"),
         (lambda: lab.gli("vis", "control", "pause"), "vis", "query uwsimnet/lab/control/*"),
+        # #41: control is the operator's: an app may not pause, move another's vehicle, add or remove modems
+        (lambda: lab.gli("app-a", "control", "pause"), "app-a", "query uwsimnet/lab/control/*"),
+        (lambda: lab.gli("app-a", "control", "move", "vehicle=vb", "p=[0,0,0]"), "app-a",
+         "query uwsimnet/lab/control/*"),
+        (lambda: lab.gli("app-a", "control", "remove_device", "id=b"), "app-a", "query uwsimnet/lab/control/*"),
         (lambda: lab.gli("drv-y", "send", "y", "2", "x"), "drv-y", "watch uwsimnet/lab/modem/y/driver/*"),
         (lambda: lab.uwsimnet("app-a", "vehicles", "--vehicle", "vb=0,0,0"), "app-a",
          "publish uwsimnet/lab/pose/vb"),

@@ -315,6 +315,30 @@ def test_page_replays_a_trace(browser, replay_trace, tmp_path):
         browser.js(f"uwsimnetView.setTime({tx['t'] + 2.0})")
         f = browser.wait(f"return uwsimnetView.frame('{tx['dev']}', {tx['seq']}, 'data')")
         assert f["state"] == "done" and dict(f["outs"]) == want
+        browser.wait(f"return document.querySelector('{sel}[data-state=\"done\"]')", what="the frame done")
+        browser.click(sel)                                  # its details: the outcomes the trace has
+        detail = browser.wait("return document.getElementById('detail').textContent", what="the frame's details")
+        assert all(f"  {dev}: {o} at " in detail for dev, o in want.items()), detail
+        # the modem filter: only frames sent or heard by that modem stay in the list
+        browser.js("const s = document.getElementById('fdev'); s.value = 'buoy-acomm';"
+                   " s.dispatchEvent(new Event('change'))")
+        buoy = "li.dataset.dev === 'buoy-acomm' || li.dataset.outcomes.includes('buoy-acomm=')"
+        rows = "const l = [...document.querySelectorAll('#frames li')]; return l.length && "
+        assert browser.wait(rows + f"l.every(li => {buoy}) && l.length", what="only buoy-acomm's frames") >= 1
+        browser.js("const s = document.getElementById('fdev'); s.value = ''; s.dispatchEvent(new Event('change'))")
+        browser.wait(rows + f"l.some(li => !({buoy}))", what="the others back without the filter")
+        # zoom about the centre: the pixel distance between two vehicles grows by the zoom factor (1.5);
+        # Fit puts the map back
+        a, b = (v.name for v in scene.vehicles[:2])
+        dist = (f"const p = uwsimnetView.pixel('{a}'), q = uwsimnetView.pixel('{b}');"
+                " return Math.hypot(p[0] - q[0], p[1] - q[1])")
+        d0 = browser.js(dist)
+        browser.click("#zoomin")
+        browser.wait("return uwsimnetView.zoom === 1.5", what="zoomed in")
+        assert browser.js(dist) == pytest.approx(1.5 * d0, rel=1e-9)
+        browser.click("#fit")
+        browser.wait("return uwsimnetView.zoom === 1", what="fitted")
+        assert browser.js(dist) == pytest.approx(d0, rel=1e-9)
         # play at 10x: time moves by itself
         browser.js("uwsimnetView.setTime(0); uwsimnetView.play(10)")
         browser.wait("return uwsimnetView.T > 2", what="playing moves time")
@@ -377,6 +401,12 @@ def test_live_document_from_a_second_viewer_without_the_scene(live, tmp_path):
         assert view.stop() == 0, view.text()
 
 
+def test_a_world_nobody_serves_is_one_line_naming_the_worlds_seen(live):
+    """`--world <typo>`: no page that says "connected" over nothing; exit 2, the worlds there are named."""
+    err = _one_line_exit_2(["view", "--connect", live["endpoint"], "--world", WORLD + "x", "--port", "0"], 120)
+    assert f"no world '{WORLD}x'" in err and f"worlds seen: {WORLD}" in err, err
+
+
 @needs_browser
 def test_page_shows_a_live_run(browser, live, tmp_path):
     from uwsimnet_gli import World
@@ -404,6 +434,8 @@ def test_page_shows_a_live_run(browser, live, tmp_path):
         # pause and resume through the control API, from the page's buttons
         browser.wait("return !document.getElementById('pause').disabled", what="control allowed")
         browser.click("#pause")
+        browser.wait("return /^paused at t = /.test(document.getElementById('ctlmsg').textContent)",
+                     what="the confirmation")
         browser.wait("return !document.getElementById('paused').hidden", what="paused")
         browser.wait("return document.getElementById('ctlmsg').textContent.startsWith('paused at t = ')",
                      what="the pause confirmed")
@@ -416,6 +448,10 @@ def test_page_shows_a_live_run(browser, live, tmp_path):
         assert w.control("state")["paused"] is True
         browser.click("#resume")
         browser.wait("return document.getElementById('paused').hidden", what="resumed")
+        browser.wait("return /^resumed at t = /.test(document.getElementById('ctlmsg').textContent)",
+                     what="the confirmation")
+        time.sleep(0.5)                                       # many update batches later: still there
+        assert browser.js("return document.getElementById('ctlmsg').textContent").startswith("resumed at t = ")
         browser.wait(f"return uwsimnetView.T > {t_paused} + 0.2", what="time moves again")
     # the trace (written by the broker, published on the trace keys the page reads) says the same
     deadline = time.monotonic() + WAIT
@@ -499,3 +535,128 @@ def test_documents_are_json_even_with_non_finite_numbers():
 
     doc = {"frames": [{"outcomes": {"b": {"dist": float("nan")}}}], "t": float("inf"), "flow": "NaN"}
     assert json.loads(_json_bytes(doc)) == {"frames": [{"outcomes": {"b": {"dist": None}}}], "t": None, "flow": "NaN"}
+
+
+# -- #41: data is text, the page is its own origin, memory is bounded -------------------------------
+XSS = "<img src=x onerror=\"window.pwned=1\">"
+
+
+def test_a_trace_whose_meta_carries_markup_is_refused_on_read(tmp_path):
+    meta = {"ev": "meta", "devices": {"a": {"vehicle": "v", "address": 1, "tx_channel": XSS, "rx_channel": 0}}}
+    (tmp_path / "x.jsonl").write_text(json.dumps(meta) + "\n")
+    msg = _one_line_exit_2(["view", str(tmp_path / "x.jsonl"), "--port", "0"])
+    assert "tx_channel" in msg and "not an integer" in msg, msg
+
+
+@contextlib.contextmanager
+def _served(server):
+    """A ViewServer on a free loopback port in a thread of its own; its URL."""
+    import asyncio
+    import threading
+
+    from uwsimnet_zenoh.view.server import serve_forever
+
+    ready: list[str] = []
+    holder: dict = {}
+
+    def run() -> None:
+        async def main() -> None:
+            holder["stop"], holder["loop"] = asyncio.Event(), asyncio.get_running_loop()
+            await serve_forever(server, "127.0.0.1", 0, ready.append, holder["stop"])
+        asyncio.run(main())
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    deadline = time.monotonic() + WAIT
+    while not ready and time.monotonic() < deadline:
+        time.sleep(0.05)
+    try:
+        yield ready[0]
+    finally:
+        holder["loop"].call_soon_threadsafe(holder["stop"].set)
+        th.join(10)
+
+
+def _forged_live_state() -> LiveState:
+    """What a forged `modem/*/info` reply and a forged trace sample on Zenoh feed the page (LiveSource's
+    validation lets strings through where the wire allows them)."""
+    st = LiveState(XSS)
+    st.merge_state({"modems": {XSS: {"vehicle": XSS, "address": XSS, "tx_channel": XSS, "rx_channel": 0}}})
+    st.set_control(True)
+    st.trace({"ev": "tx", "t": 0.5, "dev": XSS, "src": 1, "dst": 255, "seq": 7, "size": 4, "ch": XSS,
+              "kind": XSS, "id": 1})
+    return st
+
+
+@needs_browser
+def test_injected_markup_is_shown_as_text(browser):
+    from uwsimnet_zenoh.view.server import ViewServer
+
+    with _served(ViewServer(live=_forged_live_state())) as url:
+        browser.get(url)
+        browser.wait("return window.uwsimnetView && uwsimnetView.ready && uwsimnetView.modems() === 1",
+                     what="the forged modem")
+        browser.wait("return document.querySelector('#frames li')", what="the forged frame in the list")
+        assert browser.js("return document.querySelectorAll('img').length") == 0
+        assert browser.js("return window.pwned === undefined")
+        assert XSS in browser.js("return document.getElementById('modems').textContent")
+        assert XSS in browser.js("return document.getElementById('frames').textContent")
+
+
+def test_foreign_origin_and_host_are_refused():
+    import urllib.error
+    import urllib.request
+
+    from uwsimnet_zenoh.view.server import ViewServer
+
+    calls: list[str] = []
+    st = LiveState("w")
+    st.set_control(True)
+    server = ViewServer(live=st, control=lambda op: calls.append(op) or {"ok": True, "t": 1.0})
+
+    def status(url: str, method: str = "GET", **headers: str) -> int:
+        req = urllib.request.Request(url, method=method, headers=headers, data=b"" if method == "POST" else None)
+        try:
+            with urllib.request.urlopen(req, timeout=WAIT) as r:
+                return r.status
+        except urllib.error.HTTPError as e:
+            return e.code
+
+    with _served(server) as url:
+        port = url.rstrip("/").rsplit(":", 1)[1]
+        assert status(url + "api/doc") == 200
+        assert status(url + "api/doc", Host=f"evil.example:{port}") == 403          # DNS rebinding
+        assert status(url + "api/control/pause", "POST", Origin="http://evil.example") == 403
+        assert calls == []                                                          # the run was not paused
+        ws = {"Connection": "Upgrade", "Upgrade": "websocket", "Sec-WebSocket-Version": "13",
+              "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ=="}
+        assert status(url + "ws", Origin="http://evil.example", **ws) == 403
+        assert status(url + "api/control/pause", "POST", Origin=f"http://127.0.0.1:{port}") == 200
+        assert calls == ["pause"]
+        assert server.refused == 3
+
+
+def test_a_flood_of_pose_names_is_bounded_and_counted():
+    from uwsimnet_zenoh.view.state import MAX_VEHICLES
+
+    st = LiveState("w")
+    for i in range(20000):
+        st.pose(f"v{i}", (0.0, 0.0, 0.0), float(i))
+    assert len(st.poses) == len(st.vehicles) == MAX_VEHICLES
+    assert st.refused_vehicles == 20000 - MAX_VEHICLES
+
+
+def test_half_open_connections_are_closed():
+    """A connection that sends nothing, or half a request and then nothing, is closed after the idle timeout."""
+    from uwsimnet_zenoh.view.server import ViewServer
+
+    server = ViewServer(doc={"mode": "replay"})
+    server.idle_timeout = 1.0
+    with _served(server) as url:
+        port = int(url.rstrip("/").rsplit(":", 1)[1])
+        for first in (b"", b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n"):
+            with socket.create_connection(("127.0.0.1", port), timeout=WAIT) as c:
+                c.sendall(first)
+                t0 = time.monotonic()
+                assert c.recv(1) == b""                 # closed by the server (a timeout here raises instead)
+                assert time.monotonic() - t0 >= 0.9

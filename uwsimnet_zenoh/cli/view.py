@@ -123,7 +123,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 def _live(args: argparse.Namespace) -> int:
     from ..app.virtual import load_scene_file  # noqa: PLC0415 - see the imports
     from ..bus.session import BusError
-    from ..view.live import LiveSource, client_session, discover_world
+    from ..view.live import LiveSource, check_world, client_session, discover_world
     from ..view.server import ViewServer
     from ..view.state import LiveState, scene_parts
 
@@ -141,6 +141,8 @@ def _live(args: argparse.Namespace) -> int:
         while True:
             try:
                 world = args.world or discover_world(session)
+                if args.world:
+                    check_world(session, world, restricted=bool(args.zenoh_config))
                 break
             except BusError as e:
                 if time.monotonic() >= deadline:

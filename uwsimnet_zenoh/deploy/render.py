@@ -28,7 +28,7 @@ Inventory (TOML, see deploy/inventory.example.toml):
 
     [[identities]]
     name = "sim"                 # certificate CN and user name (unique among hosts and identities)
-    role = "broker"              # broker | driver | app | visitor
+    role = "broker"              # broker | driver | app | operator | visitor
     host = "broker"              # the machine it runs on (its config lands in OUTDIR/<host>/clients/)
     # router = "broker"          # the host whose router it connects to (default: host, over loopback)
     # modems = ["m1"]            # driver/app: only these modem ids (default: all)
@@ -54,7 +54,7 @@ from uwsimnet_gli import wire
 from ..errors import UwsimnetError
 
 PREFIX = wire.PREFIX
-ROLE_NAMES = ("broker", "driver", "app", "visitor")
+ROLE_NAMES = ("broker", "driver", "app", "operator", "visitor")
 ROUTER_ROLE = "router"
 TOPOLOGIES = ("star", "chain", "mesh")
 DEFAULT_PORT = 7447
@@ -84,12 +84,15 @@ ROLES: dict[str, Role] = {
                    ("uwsimnet driver evologics/serial --id M", "uwsimnet emulate evologics/serial --id M",
                     "uwsimnet bridge socket/mq --id M"),
                    "a real modem (HIL) that takes its modems over, or an emulator/bridge on the modem's host"),
-    "app": Role(("modem", "listen", "info", "pose", "poses", "command", "clock", "control", "trace",
+    "app": Role(("modem", "listen", "info", "pose", "poses", "command", "clock", "trace",
                  "vehicles", "backend"),
-                ("gli send/flow M", "gli listen M", "gli info M", "gli pose V", "gli vehicle V", "gli control OP",
+                ("gli send/flow M", "gli listen M", "gli info M", "gli pose V", "gli vehicle V",
                  "gli trace", "uwsimnet vehicles --vehicle V=X,Y,Z", "uwsimnet emulate ... --id M",
                  "uwsimnet bridge ... --id M"),
-                "an application or robot: sends and receives on its modems, moves its vehicles, controls the run"),
+                "an application or robot: sends and receives on its modems, moves its vehicles"),
+    "operator": Role(("control", "trace", "info", "poses", "clock"),
+                     ("gli control OP", "uwsimnet view --world W", "gli trace", "gli info"),
+                     "runs the run: pause/resume, move any vehicle, add/remove modems (#41: never an app's right)"),
     "visitor": Role(("trace",), ("gli trace",), "read-only: trace events, nothing else"),
 }
 """The access of every role.  Routers may do everything."""

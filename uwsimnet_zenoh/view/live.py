@@ -33,15 +33,32 @@ def client_session(connect: list[str] | None, config_file: str | None) -> zenoh.
     return open_raw(conf)
 
 
-def discover_world(session: zenoh.Session, timeout: float = 2.0) -> str:
+def seen_worlds(session: zenoh.Session, timeout: float = 2.0) -> set[str]:
+    """Worlds that answer control/state (an operator) or have a modem's driver token (anyone may see those)."""
     found = set()
-    for r in session.get(f"{wire.PREFIX}/*/control/state", timeout=timeout):
-        if r.ok is not None:
-            k = wire.parse(str(r.ok.key_expr))
-            if k is not None:
-                found.add(k.world)
+    for key, get in ((f"{wire.PREFIX}/*/control/state", session.get),
+                     (f"{wire.PREFIX}/*/modem/*/driver/*", session.liveliness().get)):
+        with contextlib.suppress(Exception):                 # not allowed to ask: the other way tells
+            for r in get(key, timeout=timeout):
+                if r.ok is not None:
+                    k = wire.parse(str(r.ok.key_expr))
+                    if k is not None:
+                        found.add(k.world)
+    return found
+
+
+def check_world(session: zenoh.Session, world: str, restricted: bool) -> None:
+    """BusError (one line, naming the worlds seen) if no broker serves `world`.  A `restricted` identity
+    (a --zenoh-config: a visitor reads traces only) that sees no world at all is let through: it cannot tell."""
+    found = seen_worlds(session)
+    if world not in found and (found or not restricted):
+        raise BusError(f"no world {world!r} here (worlds seen: {', '.join(sorted(found)) or 'none'})")
+
+
+def discover_world(session: zenoh.Session, timeout: float = 2.0) -> str:
+    found = seen_worlds(session, timeout)
     if len(found) != 1:
-        raise BusError("no world answers control/state: name it with --world" if not found
+        raise BusError("no world answers: name it with --world" if not found
                        else f"several worlds answer ({', '.join(sorted(found))}): name one with --world")
     return found.pop()
 
@@ -172,8 +189,12 @@ class LiveSource:
             self.state.merge_state({"modems": modems})
 
     def _refresher(self) -> None:
+        """Refresh every REFRESH_S; until control answers, sooner (0.1 s doubling): a fresh client session
+        learns the broker's queryables a moment after it connects, and the page enables Pause at once."""
+        wait = 0.1
         self.refresh()
-        while not self._stop.wait(REFRESH_S):
+        while not self._stop.wait(REFRESH_S if self.state.control else wait):
+            wait = min(REFRESH_S, wait * 2)
             self.refresh()
 
     def control(self, op: str) -> dict[str, Any]:

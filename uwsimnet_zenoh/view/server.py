@@ -29,6 +29,9 @@ from .state import LiveState
 STATIC = Path(__file__).with_name("static")
 BATCH_S = 0.05
 """A WebSocket task collects updates for this long before sending them as one message."""
+IDLE_TIMEOUT_S = 15.0
+"""An HTTP connection that sends no complete request for this long (silent, half-open, or one header a
+minute) is closed (#41: they used to stay open forever)."""
 SEND_TIMEOUT_S = 10.0
 """A browser that takes longer than this to take one message is dropped."""
 
@@ -68,7 +71,12 @@ class ViewServer:
         self._pending = False
         self.clients = 0
         self._sockets: set[web.WebSocketResponse] = set()
-        self.app = web.Application()
+        self.hosts: set[str] = set()
+        """Host headers this page answers (set by start(): its own address, localhost): anything else is a
+        DNS-rebinding name or a foreign page, refused (#41)."""
+        self.refused = 0
+        self.idle_timeout = IDLE_TIMEOUT_S
+        self.app = web.Application(middlewares=[self._same_origin])
         self.app.on_shutdown.append(self._close_sockets)
         self.app.router.add_get("/", self._index)
         self.app.router.add_get("/api/doc", self._api_doc)
@@ -94,7 +102,7 @@ class ViewServer:
         self._loop = asyncio.get_running_loop()
         if self.live is not None:
             self.live.listeners.append(self._on_change)
-        runner = web.AppRunner(self.app, access_log=None, shutdown_timeout=2.0)
+        runner = web.AppRunner(self.app, access_log=None, shutdown_timeout=2.0, keepalive_timeout=self.idle_timeout)
         await runner.setup()
         site = web.TCPSite(runner, host, port, reuse_address=False)
         try:
@@ -104,12 +112,25 @@ class ViewServer:
             raise
         server = site._server                                 # noqa: SLF001 - the only way to the bound port
         sock = server.sockets[0] if server is not None and server.sockets else None
-        return runner, (sock.getsockname()[1] if sock is not None else port)
+        bound = sock.getsockname()[1] if sock is not None else port
+        names = {host, f"[{host}]" if ":" in host else host, "localhost", "127.0.0.1", "[::1]"}
+        self.hosts = {f"{n.lower()}:{bound}" for n in names}
+        return runner, bound
 
     async def _close_sockets(self, _app: web.Application) -> None:
         for ws in list(self._sockets):
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(ws.close(code=1001, message=b"server shutdown"), 2.0)
+
+    @web.middleware
+    async def _same_origin(self, req: web.Request, handler: Callable[[web.Request], Any]) -> web.StreamResponse:
+        """403 for a foreign Host (DNS rebinding) and for a foreign Origin (another site's page or socket)."""
+        origin = req.headers.get("Origin")
+        if req.host.lower() not in self.hosts or (origin is not None and origin.lower() not in
+                                                   {f"http://{h}" for h in self.hosts}):
+            self.refused += 1
+            return web.Response(status=403, text="foreign Host or Origin\n")
+        return await handler(req)
 
     # -- handlers ----------------------------------------------------------------------------------
     async def _index(self, _req: web.Request) -> web.StreamResponse:

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from ..analysis import TraceError
 from ..analysis.airframes import AirFrame, AirTracker
 from ..engine.network import Network
 from ..scene.model import Scene
@@ -39,6 +40,8 @@ LIVE_FRAMES = 4000
 LIVE_EVENTS = 20000
 LIVE_POSES = 3000
 """Live history kept per kind (frames, events, pose samples per vehicle): older entries are forgotten."""
+MAX_VEHICLES = 1000
+"""Live vehicles kept: pose samples naming more (a forged flood of names) are refused and counted."""
 CLOCK_FROM_TRACE_S = 0.05
 """Without clock samples, a trace record this much later than the time shown moves it."""
 
@@ -92,6 +95,9 @@ def meta_parts(meta: dict[str, Any]) -> dict[str, Any]:
     for dev, d in (meta.get("devices") or {}).items():
         if not isinstance(d, dict):
             continue
+        for k in ("address", "tx_channel", "rx_channel"):          # #41: a string here was script in a page
+            if d.get(k) is not None and (not isinstance(d[k], int) or isinstance(d[k], bool)):
+                raise TraceError(f"meta line: device {str(dev)[:40]!r}: {k} {str(d[k])[:40]!r} is not an integer")
         veh = str(d.get("vehicle") or dev)
         vehicles.setdefault(veh, {"source": "unknown"})
         devices[dev] = {"vehicle": veh, "address": d.get("address"), "tx_channel": d.get("tx_channel"),
@@ -171,6 +177,7 @@ class LiveState:
         self.clock_seen = False
         self.control = False
         self.kinds: dict[str, str | None] = {}
+        self.refused_vehicles = 0
         self._tracker = AirTracker(keep=False)
         self._counters = Counters()
         self.log: deque[tuple[int, dict[str, Any]]] = deque(maxlen=log_size)
@@ -223,6 +230,9 @@ class LiveState:
             s = [float(t), float(p[0]), float(p[1]), float(p[2])]
             q = self.poses.get(vehicle)
             if q is None:
+                if len(self.poses) >= MAX_VEHICLES:
+                    self.refused_vehicles += 1      # a flood of pose names (#41): counted, never stored
+                    return
                 q = self.poses[vehicle] = deque(maxlen=LIVE_POSES)
                 self.vehicles.setdefault(vehicle, {"source": "zenoh"})
                 self._push(self._devices_update())

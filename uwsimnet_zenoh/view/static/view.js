@@ -5,7 +5,7 @@
 (function () {
   const HOLD = 1.5;          // s of simulation time an outcome stays drawn at its receiver
   const TRAIL = 60;          // s of trail behind each vehicle
-  const LIST = 14;           // frames in the list
+  const LIST = 40;           // frames in the list (the latest that pass the filters)
   const CAP = { frames: 4000, events: 5000, poses: 3000 };
   const COLORS = { rx: "#2ecc71", col: "#e74c3c", prop: "#b0b0b0", mult: "#ff8c1a", range: "#7f8c8d" };
   const $ = (id) => document.getElementById(id);
@@ -25,7 +25,12 @@
     }
     return ans;
   }
-  function esc(s) { return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
+  function el(tag, cls, ...kids) {                  // an element whose data is text, never markup (#41)
+    const e = document.createElement(tag);
+    if (cls) e.className = cls;
+    e.append(...kids.map((x) => (x instanceof Node ? x : String(x))));
+    return e;
+  }
   function perColor(p) {                             // 0 green, 0.5 yellow, 1 red
     p = Math.max(0, Math.min(1, p));
     const a = [46, 204, 113], b = [241, 196, 15], c = [231, 76, 60];
@@ -191,14 +196,25 @@
 
   // -- drawing -------------------------------------------------------------------------------------
   const canvas = $("map"), ctx = canvas.getContext("2d");
-  function toPx(p) {
-    const [x0, y0, x1, y1] = S.bounds, W = canvas.width, H = canvas.height;
-    const s = Math.min(W / (x1 - x0), H / (y1 - y0));
-    const ox = (W - s * (x1 - x0)) / 2, oy = (H - s * (y1 - y0)) / 2;
-    return [ox + (p[0] - x0) * s, H - (oy + (p[1] - y0) * s)];
-  }
-  function drawGrid() {
+  const V = { zoom: 1, dx: 0, dy: 0 };               // the user's zoom and pan (px) over the fitted map
+  function scale() {
     const [x0, y0, x1, y1] = S.bounds;
+    return Math.min(canvas.width / (x1 - x0), canvas.height / (y1 - y0)) * V.zoom;
+  }
+  function toPx(p) {                                   // fitted and centred, then zoomed about the centre and panned
+    const [x0, y0, x1, y1] = S.bounds, W = canvas.width, H = canvas.height, s = scale();
+    const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+    return [W / 2 + V.dx + (p[0] - cx) * s, H / 2 + V.dy - (p[1] - cy) * s];
+  }
+  function zoomAt(f, px, py) {                         // zoom by f keeping the map point under (px, py) still
+    const nz = Math.max(0.05, Math.min(1e4, V.zoom * f)), k = nz / V.zoom;
+    const W = canvas.width / 2, H = canvas.height / 2;
+    V.dx = (px - W) - (px - W - V.dx) * k; V.dy = (py - H) - (py - H - V.dy) * k; V.zoom = nz;
+  }
+  function drawGrid() {                               // metric axes only where positions are real (--scene)
+    if (!S.doc.positions) return;
+    const W = canvas.width, H = canvas.height, s = scale(), [cx, cy] = [(S.bounds[0] + S.bounds[2]) / 2, (S.bounds[1] + S.bounds[3]) / 2];
+    const x0 = cx - (W / 2 + V.dx) / s, x1 = cx + (W / 2 - V.dx) / s, y0 = cy - (H / 2 - V.dy) / s, y1 = cy + (H / 2 + V.dy) / s;
     const span = Math.max(x1 - x0, y1 - y0);
     const step = Math.pow(10, Math.floor(Math.log10(span / 4)));
     ctx.strokeStyle = "#1a3350"; ctx.lineWidth = 1; ctx.fillStyle = "#4f6f8f"; ctx.font = "10px sans-serif";
@@ -299,15 +315,22 @@
   // -- panels --------------------------------------------------------------------------------------
   function buildModems() {
     const tb = $("modems").tBodies[0];
-    tb.innerHTML = "";
+    tb.replaceChildren();
     for (const [id, d] of Object.entries(S.doc.devices).sort()) {
       const tr = document.createElement("tr");
       tr.dataset.dev = id;
       const kind = d.kind == null ? "none" : d.kind;
-      tr.innerHTML = `<td title="vehicle ${esc(d.vehicle)}">${esc(id)}</td><td class="kind"><span class="badge ${esc(kind)}">${esc(kind)}</span></td>` +
-        `<td>${d.address ?? ""}</td><td>${d.tx_channel ?? ""}</td><td class="enq"></td><td class="tx"></td><td class="rx"></td>` +
-        `<td class="drop"></td><td><span class="fifo"><span></span></span> <span class="fifob"></span></td>`;
+      const badge = el("span", "badge " + (["sim", "real", "none"].includes(kind) ? kind : "other"), kind);
+      tr.append(Object.assign(el("td", "", id), { title: `vehicle ${d.vehicle}` }), el("td", "kind", badge),
+        el("td", "", d.address ?? ""), el("td", "", d.tx_channel ?? ""), el("td", "enq"), el("td", "tx"),
+        el("td", "rx"), el("td", "drop"), el("td", "", el("span", "fifo", el("span")), " ", el("span", "fifob")));
       tb.appendChild(tr);
+    }
+    for (const [sel, vals] of [["fdev", Object.keys(S.doc.devices).sort()],
+      ["fch", [...new Set(Object.values(S.doc.devices).map((d) => d.tx_channel).filter((c) => c != null).map(String))].sort()]]) {
+      const cur = $(sel).value;
+      $(sel).replaceChildren(el("option", "", "all"), ...vals.map((v) => el("option", "", v)));
+      $(sel).options[0].value = ""; $(sel).value = vals.includes(cur) ? cur : "";
     }
     $("nveh").textContent = Object.keys(S.doc.vehicles).length;
     $("nmod").textContent = Object.keys(S.doc.devices).length;
@@ -322,23 +345,28 @@
     }
     const items = [];
     const i = lastAtOrBefore(S.frames, T, (f) => f.t);
+    const fl = { dev: $("fdev").value, ch: $("fch").value, kind: $("fkind").value, out: $("fout").value };
     for (let k = i; k >= 0 && items.length < LIST; k--) {
       const f = S.frames[k], st = frameStatus(f, T);
-      const outs = st.outs.map(([dev, o]) => `<span class="o-${COLORS[o] ? o : "other"}">${esc(dev)} ${esc(o)}</span>`).join(", ");
-      items.push(`<li data-id="${f.id}" data-dev="${esc(f.dev)}" data-seq="${f.seq}" data-kind="${esc(f.kind)}" data-state="${st.state}"` +
-        ` data-outcomes="${esc(st.outs.map(([dev, o]) => dev + "=" + o).join(" "))}">${f.t.toFixed(3)} ${esc(f.dev)} → ${f.dst}` +
-        ` #${f.seq}${f.attempt > 1 && f.kind === "data" ? " (try " + f.attempt + ")" : ""} ${esc(f.kind)}${st.state === "air" ? " on air" : ""} ${outs}</li>`);
+      if ((fl.dev && f.dev !== fl.dev && !st.outs.some(([d]) => d === fl.dev)) || (fl.ch && String(f.ch) !== fl.ch) ||
+          (fl.kind && f.kind !== fl.kind) || (fl.out && (fl.out === "air" ? st.state !== "air" : !st.outs.some(([, o]) => o === fl.out)))) continue;
+      const li = el("li", "", `${(+f.t).toFixed(3)} ${f.dev} → ${f.dst} #${f.seq}` +
+        `${f.attempt > 1 && f.kind === "data" ? " (try " + f.attempt + ")" : ""} ${f.kind}${st.state === "air" ? " on air" : ""} `);
+      Object.assign(li.dataset, { id: f.id, dev: f.dev, seq: f.seq, kind: f.kind, state: st.state,
+        outcomes: st.outs.map(([dev, o]) => dev + "=" + o).join(" ") });
+      st.outs.forEach(([dev, o], j) => li.append(j ? ", " : "", el("span", `o-${COLORS[o] ? o : "other"}`, `${dev} ${o}`)));
+      items.push(li);
     }
-    $("frames").innerHTML = items.join("");
+    const sig = items.map((li) => li.textContent + li.dataset.state).join("\n");
+    if (sig !== S.listSig) { S.listSig = sig; $("frames").replaceChildren(...items); }   // unchanged: clickable
     $("clock").textContent = `t = ${T.toFixed(3)} s`;
   }
-  function ctlButtons() {
+  function ctlButtons() {                          // a message stays until the next one (never wiped by updates)
     const can = S.mode === "live" && !!S.doc.control;
     $("pause").disabled = !can; $("resume").disabled = !can;
-    // the last pause/resume answer stays until the next one; only the "not allowed" note follows `can`
-    const m = $("ctlmsg"), note = "control not allowed";
-    if (S.mode === "live" && !can) m.textContent = note;
-    else if (m.textContent === note) m.textContent = "";
+    if (can === S.ctlCan) return;
+    if (S.ctlCan !== undefined || !can) $("ctlmsg").textContent = S.mode !== "live" ? "" : can ? "control allowed" : "control not allowed";
+    S.ctlCan = can;
   }
 
   // -- time ----------------------------------------------------------------------------------------
@@ -384,6 +412,30 @@
     if (S.playing && S.T >= S.doc.t1) S.T = S.doc.t0;
     $("play").textContent = S.playing ? "Stop" : "Play";
   });
+  canvas.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    const r = canvas.getBoundingClientRect();
+    zoomAt(Math.exp(-e.deltaY * 0.0015), (e.clientX - r.left) * canvas.width / r.width, (e.clientY - r.top) * canvas.height / r.height);
+  }, { passive: false });
+  let drag = null;
+  canvas.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; });
+  window.addEventListener("mouseup", () => { drag = null; });
+  window.addEventListener("mousemove", (e) => {
+    if (!drag) return;
+    const r = canvas.getBoundingClientRect();
+    V.dx += (e.clientX - drag[0]) * canvas.width / r.width; V.dy += (e.clientY - drag[1]) * canvas.height / r.height;
+    drag = [e.clientX, e.clientY];
+  });
+  $("zoomin").addEventListener("click", () => zoomAt(1.5, canvas.width / 2, canvas.height / 2));
+  $("zoomout").addEventListener("click", () => zoomAt(1 / 1.5, canvas.width / 2, canvas.height / 2));
+  $("fit").addEventListener("click", () => { V.zoom = 1; V.dx = 0; V.dy = 0; });
+  $("frames").addEventListener("click", (e) => {     // a frame's details, from the document (as text)
+    const li = e.target.closest("li"), f = li && S.framesById.get(+li.dataset.id);
+    if (!f) return;
+    const outs = Object.entries(f.outcomes).map(([d, o]) => `  ${d}: ${o.outcome} at ${(+o.t).toFixed(6)} s`);
+    $("detail").textContent = [`frame ${f.dev} → ${f.dst} #${f.seq} ${f.kind} (try ${f.attempt}), channel ${f.ch}`,
+      `sent at ${(+f.t).toFixed(6)} s`, "outcomes:", ...(outs.length ? outs : ["  none yet"])].join("\n");
+  });
   $("speed").addEventListener("change", (e) => { S.speed = parseFloat(e.target.value); });
   $("follow").addEventListener("click", () => { S.follow = true; });
   for (const op of ["pause", "resume"]) {
@@ -427,6 +479,8 @@
     modems: () => Object.keys(S.doc.devices).length,
     kinds: () => Object.fromEntries(Object.entries(S.doc.devices).map(([k, d]) => [k, d.kind])),
     position: (v) => posAt(v, S.T),
+    pixel: (v) => toPx(posAt(v, S.T)),
+    get zoom() { return V.zoom; },
     frame: (dev, seq, kind) => {
       for (let k = S.frames.length - 1; k >= 0; k--) {
         const f = S.frames[k];
