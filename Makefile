@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml gli_clients/python/pyproject.toml
 	@echo "setup: a virtual environment in $(VENV) ($(PY))"
 	@$(PY) -m venv $(VENV)
 	@echo "setup: installing the package and its dependencies (pip; its log: $(VENV)/pip.log)"
-	@{ $(BIN)/pip install -q --upgrade pip && $(BIN)/pip install -q -e gli_clients/python \
+	@{ $(BIN)/pip install -q --upgrade pip 'setuptools>=77' && $(BIN)/pip install -q -e gli_clients/python \
 	   && $(BIN)/pip install -q -e '.[dev]'; } >$(VENV)/pip.log 2>&1 || { tail -n 30 $(VENV)/pip.log; exit 1; }
 	@$(BIN)/python build_native.py
 	@touch $(STAMP)
