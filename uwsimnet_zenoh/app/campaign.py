@@ -224,4 +224,7 @@ def plain_progress(n: int, total: int, row: dict[str, Any]) -> None:
     """Progress as plain lines (piped output, CI logs)."""
     state = "ok" if row.get("status") == "ok" else f"ERROR {row.get('error')}"
     params = " ".join(f"{k[6:]}={v}" for k, v in row.items() if k.startswith("param."))
-    print(f"sweep: {n}/{total} {row['scene']} seed {row['seed']} {params} {state}", file=sys.stderr, flush=True)
+    # One write, newline included: print() writes the end separately, and a Ctrl-C between the two writes left
+    # the interrupt message glued to a progress line.
+    sys.stderr.write(f"sweep: {n}/{total} {row['scene']} seed {row['seed']} {params} {state}\n")
+    sys.stderr.flush()
