@@ -237,12 +237,17 @@ def test_bad_clients_get_one_log_line_and_the_others_are_served(net):
     req = json.dumps({"action": "send", "message": {"clazz": "org.arl.fjage.param.ParameterReq", "data": {
         "msgID": "p", "perf": "REQUEST", "recipient": "phy", "sender": "lazy", "index": -1}}}).encode() + b"\n"
     try:
-        deadline = time.time() + 60
-        while time.time() < deadline and not any("does not read" in x for x in gw.err):
+        deadline, sent, why = time.monotonic() + 120, 0, "deadline"
+        while time.monotonic() < deadline and not any("does not read" in x for x in gw.err):
             try:
                 lazy.sendall(req * 200)
-            except OSError:
+                sent += 200
+            except OSError as e:               # the gateway closed it: its log line follows on stderr
+                why = repr(e)
                 break
+        while time.monotonic() < deadline and not any("does not read" in x for x in gw.err):
+            time.sleep(0.05)
+        assert any("does not read" in x for x in gw.err), (why, sent, gw.err[-5:])
         with sock(net, "A") as a, sock(net, "B") as b:         # the others: served
             b.bind(Protocol.USER)
             assert a.send(b"still here", to=31, protocol=Protocol.USER)
