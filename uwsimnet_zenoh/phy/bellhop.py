@@ -119,7 +119,7 @@ class BellhopModel(ChannelModel):
         where = Path(params.get("cache", "") or cache_dir())
         program = find_program(params.get("program"))
         paths = [_cached(where, s.key(), program) for s in specs]
-        missing = [i for i, p in enumerate(paths) if not p.exists()]
+        missing = [i for i, p in enumerate(paths) if not p.exists() and p not in paths[:i]]   # each file once
         if missing:
             if program is None:
                 raise ValueError(HOWTO)
