@@ -100,18 +100,20 @@ def test_each_bearing_reads_the_bottom_along_its_sector_from_the_senders_cell(st
         cell = (0.0, 0.0) if "(0, 0)" in s.label else (1000.0, 0.0)
         phi = math.radians(float(s.label.split("bearing ")[1].split(" deg")[0]))
         want = [max(1.0, slope_depth(cell[0] + r * math.cos(phi), cell[1] + r * math.sin(phi))) for r, _ in s.bty]
-        assert [z for _, z in s.bty] == pytest.approx(want, abs=1e-9)
+        assert [z for _, z in s.bty] == pytest.approx(want, abs=5e-7)    # to the .bty file's 6 decimals
         assert s.bty[-1][0] >= 1000.0 and s.bottom_m == pytest.approx(max(want)) and s.sds == [10.0]
-    # north and south see the same flat line, so their grids are one file (the key is the content)
-    assert buoy.paths[2] == buoy.paths[6] and len({*buoy.paths, *auv.paths}) == 8 + 8 - 1 - 1
-    assert len(stub) == 14                   # each file computed once: the AUV's cell (0, 0) is the buoy's
+    # sectors mirrored about the slope's direction (+-45, +-90, +-135 deg) see the same bottom: one file each
+    assert buoy.paths[2] == buoy.paths[6] and buoy.paths[1] == buoy.paths[7] and buoy.paths[3] == buoy.paths[5]
+    assert len(set(buoy.paths)) == 5 and len({*buoy.paths, *auv.paths}) == 10
+    assert len(stub) == 10                   # each file computed once: the AUV's cell (0, 0) is the buoy's
     r = 600.0
     for bearing, centre in ((0, 0), (30, 45), (90, 90), (100, 90), (180, 180), (250, 270)):
         a = math.radians(bearing)
         ans = query(buoy, (0.0, 0.0, -10.0), [(r * math.cos(a), r * math.sin(a), -20.0)])
         tl = buoy.link.sl_db - ans.level_db[0]
-        assert tl == pytest.approx(slope_depth(r * math.cos(math.radians(centre)), 0.0), abs=1e-9), bearing
+        assert tl == pytest.approx(slope_depth(r * math.cos(math.radians(centre)), 0.0), abs=5e-7), bearing
         assert ans.delay[0] == pytest.approx(r / 1500.0)
+    assert buoy.grid_for((0.0, 0.0, -10.0), (10.0, 600.0, -20.0)) is buoy.grids[2]       # north: what plot draws
     # the AUV near its last waypoint sends from the cell at (1000, 0): east of it the bottom is 20 m deeper
     ans = query(auv, (990.0, 20.0, -10.0), [(1590.0, 20.0, -20.0), (390.0, 20.0, -20.0)])
     assert [auv.link.sl_db - v for v in ans.level_db] == pytest.approx([slope_depth(1600.0, 0), slope_depth(400, 0)])

@@ -135,8 +135,19 @@ class BellhopModel(ChannelModel):
         self.path = paths[0]
         self.grid = _load(str(self.path), self.path.stat().st_mtime_ns)
         self._tables()
-        self._by_sector = [_prepared(_load(str(p), p.stat().st_mtime_ns), self.bit_s, self.isi)[:4]
-                           for p in paths] if self.sectors else []
+        self.grids = [_load(str(p), p.stat().st_mtime_ns) for p in paths]
+        self._by_sector = [_prepared(g, self.bit_s, self.isi)[:4] for g in self.grids] if self.sectors else []
+
+    def grid_for(self, tx: Any, rx: Any) -> Grid:
+        """The grid a frame from position tx to position rx reads: the grid of a flat bottom, else that of the
+        sender's nearest cell and the receiver's bearing sector."""
+        return self.grids[self._which(tx, rx)] if self.sectors else self.grid
+
+    def _which(self, s: Any, p: Any) -> int:
+        """Index of the (cell, sector) grid for a sender at s and a receiver at p (range-dependent only)."""
+        c = self.cells
+        cell = min(range(len(c)), key=lambda i: (c[i][0] - s[0]) ** 2 + (c[i][1] - s[1]) ** 2)
+        return cell * self.sectors + sector_of(p[0] - s[0], p[1] - s[1], self.sectors)
 
     def _tables(self) -> None:
         """The grid as Python lists for the per-frame path (a few receivers: math beats numpy's call cost) and
@@ -161,11 +172,8 @@ class BellhopModel(ChannelModel):
     def _at(self, tx: Any, p: Any, zs0: float, off_s: float) -> tuple[float, float, float]:
         """TL, delay, late fraction from the sender `tx` to a receiver at position p."""
         if self.sectors:                                        # range-dependent: the grid of the sender's
-            s, c = tx.position, self.cells                      # nearest cell and the receiver's bearing
-            cell = min(range(len(c)), key=lambda i: (c[i][0] - s[0]) ** 2 + (c[i][1] - s[1]) ** 2)
-            k = sector_of(p[0] - s[0], p[1] - s[1], self.sectors)
-            return self._point(zs0, -p[2], math.hypot(p[0] - s[0], p[1] - s[1]),
-                               self._by_sector[cell * self.sectors + k])
+            s = tx.position                                     # nearest cell and the receiver's bearing
+            return self._point(zs0, -p[2], math.hypot(p[0] - s[0], p[1] - s[1]), self._by_sector[self._which(s, p)])
         zs, zr = zs0, -p[2]
         if off_s > min(abs(zr - s) for s in self._axes[0]):    # reciprocity: a sender off the grid's source
             zs, zr = zr, zs                                     # depths, to a receiver on one, swaps the ends
@@ -290,8 +298,9 @@ def range_dependent(params: Any, ctx: ModelContext, floor: Any, max_range: float
     for cx, cy in cells:
         for k in range(sectors):
             phi = 2 * math.pi * k / sectors
-            bty = [(float(r), max(1.0, float(floor.depth(cx + r * math.cos(phi), cy + r * math.sin(phi)))))
-                   for r in np.arange(0.0, max_range + 2.5 * r_step, r_step)]
+            bty = [(round(float(r), 6), round(max(1.0, float(floor.depth(cx + r * math.cos(phi),
+                                                                         cy + r * math.sin(phi)))), 6))
+                   for r in np.arange(0.0, max_range + 2.5 * r_step, r_step)]      # as the .bty file has them
             specs.append(spec(max(z for _, z in bty), bty[0][1], bty,
                               f" bearing {math.degrees(phi):g} deg from ({cx:g}, {cy:g})"))
     return sectors, cells, specs
