@@ -50,12 +50,13 @@ def slope_depth(x: float, y: float) -> float:
     return 100.0 + 0.02 * x + 0.0 * y
 
 
-def query(model, tx, receivers):
+def query(model, tx, receivers, velocities=None):
     """The model's answer for one frame from `tx` to `receivers` (positions), as the channel asks it."""
     poses = PoseTable(["tx"] + [f"r{i}" for i in range(len(receivers))])
-    for name, p in [("tx", tx)] + [(f"r{i}", r) for i, r in enumerate(receivers)]:
+    vel = velocities or [(0.0, 0.0, 0.0)] * len(receivers)
+    for name, p, v in [("tx", tx, (0.0, 0.0, 0.0))] + [(f"r{i}", r, vel[i]) for i, r in enumerate(receivers)]:
         poses.set_external(name)
-        poses.update(name, 0.0, p, (0.0, 0.0, 0.0))
+        poses.update(name, 0.0, p, v)
     dist = [math.dist(tx, r) for r in receivers]
     return model.answer(Query(0.0, Frame(1, 2, 0, 32, 32), dist, list(range(len(receivers))), poses, 0,
                               list(range(1, len(receivers) + 1))))
@@ -117,6 +118,27 @@ def test_each_bearing_reads_the_bottom_along_its_sector_from_the_senders_cell(st
     # the AUV near its last waypoint sends from the cell at (1000, 0): east of it the bottom is 20 m deeper
     ans = query(auv, (990.0, 20.0, -10.0), [(1590.0, 20.0, -20.0), (390.0, 20.0, -20.0)])
     assert [auv.link.sl_db - v for v in ans.level_db] == pytest.approx([slope_depth(1600.0, 0), slope_depth(400, 0)])
+
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_many_receivers_over_a_slope_get_the_answers_of_one_at_a_time(stub, moving):
+    """The numpy path (more than MANY receivers: a gather per (cell, sector) grid) against the per-receiver
+    path, receivers all around the sender, some beyond the grid's ranges, still or moving."""
+    net = Network(load_scene_text(SCENE.format(sectors=8, rstep=50, zstep=10), "s.xml"))
+    model = net.modems["auv-modem"].error
+    rnd = random.Random(11)
+    tx = (990.0, 20.0, -10.0)
+    rxs = [(tx[0] + r * math.cos(a), tx[1] + r * math.sin(a), -rnd.uniform(1.0, 90.0))
+           for r, a in ((rnd.uniform(60.0, 1100.0), rnd.uniform(0, 2 * math.pi)) for _ in range(80))]
+    vel = [(rnd.uniform(-2, 2), rnd.uniform(-2, 2), 0.0) for _ in rxs] if moving else None
+    many = query(model, tx, rxs, vel)
+    assert len(rxs) > bellhop.MANY
+    for i, rx in enumerate(rxs):
+        one = query(model, tx, [rx], [vel[i]] if vel else None)
+        for got, want in ((many.per[i], one.per[0]), (many.delay[i], one.delay[0]),
+                          (many.level_db[i], one.level_db[0]), (many.doppler[i], one.doppler[0])):
+            assert (math.isnan(got) and math.isnan(want)) or got == pytest.approx(want, rel=1e-9, abs=1e-12), i
+    assert sum(math.isnan(d) for d in many.delay) > 3 and len({round(v, 3) for v in many.level_db}) > 40
 
 
 def test_a_flat_bottom_keeps_one_grid_and_its_key(stub):

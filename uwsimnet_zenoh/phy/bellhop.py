@@ -180,7 +180,7 @@ class BellhopModel(ChannelModel):
         return self._point(zs, zr, math.hypot(p[0] - tx.position[0], p[1] - tx.position[1]))
 
     def answer(self, q: Query) -> Answer:
-        if len(q.slots) > MANY and not self.sectors:
+        if len(q.slots) > MANY:
             return self._answer_many(q)
         tx = q.sender
         zs0 = -tx.position[2]
@@ -259,6 +259,22 @@ class BellhopModel(ChannelModel):
 
     def _at_many(self, tx: np.ndarray, p: np.ndarray, off_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """`_at` for receivers at positions p (n, 3): TL, delay, late fraction (nan, nan, 0 beyond the ranges)."""
+        if self.sectors:                                 # range-dependent: one gather per (cell, sector) grid
+            r = np.hypot(p[:, 0] - tx[0], p[:, 1] - tx[1])
+            c = np.array(self.cells)
+            cell = int(np.argmin(((c - tx[:2]) ** 2).sum(axis=1)))      # the first nearest, as `_which`
+            step = 2 * math.pi / self.sectors
+            which = cell * self.sectors + np.round(np.arctan2(p[:, 1] - tx[1], p[:, 0] - tx[0]) / step).astype(
+                int) % self.sectors
+            v = np.empty((len(p), 3))
+            for w in np.unique(which).tolist():
+                m = which == w
+                g = self.grids[w]
+                with np.errstate(invalid="ignore"):      # below the bottom: TL inf, 0 * inf is nan (lost)
+                    v[m] = _trilinear_stack(g.sd, g.rd, g.rr, _prepared(g, self.bit_s, self.isi)[4],
+                                            np.full(int(m.sum()), -tx[2]), -p[m, 2], r[m])
+                v[m & ((r < g.rr[0]) | (r > g.rr[-1]))] = (math.nan, math.nan, 0.0)
+            return v[:, 0], v[:, 1], v[:, 2]
         sd = self.grid.sd
         zs = np.full(len(p), -tx[2])
         zr = -p[:, 2]
