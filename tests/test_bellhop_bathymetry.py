@@ -102,7 +102,9 @@ def test_each_bearing_reads_the_bottom_along_its_sector_from_the_senders_cell(st
         phi = math.radians(float(s.label.split("bearing ")[1].split(" deg")[0]))
         want = [max(1.0, slope_depth(cell[0] + r * math.cos(phi), cell[1] + r * math.sin(phi))) for r, _ in s.bty]
         assert [z for _, z in s.bty] == pytest.approx(want, abs=5e-7)    # to the .bty file's 6 decimals
-        assert s.bty[-1][0] >= 1000.0 and s.bottom_m == pytest.approx(max(want)) and s.sds == [10.0]
+        cell_deepest = max(z for t in stub if t.label.endswith(s.label.split(" from ")[1]) for _, z in t.bty)
+        assert s.bty[-1][0] >= 1000.0 and s.bottom_m == cell_deepest and s.sds == [10.0]
+        assert s.bottom_m == pytest.approx(max(slope_depth(cell[0] + r, 0.0) for r, _ in s.bty), abs=5e-7)
     # sectors mirrored about the slope's direction (+-45, +-90, +-135 deg) see the same bottom: one file each
     assert buoy.paths[2] == buoy.paths[6] and buoy.paths[1] == buoy.paths[7] and buoy.paths[3] == buoy.paths[5]
     assert len(set(buoy.paths)) == 5 and len({*buoy.paths, *auv.paths}) == 10
@@ -171,7 +173,7 @@ def test_cached_sector_grids_against_a_direct_bellhop_run_with_the_same_bty(tmp_
                for r in np.arange(0.0, 1000.0 + 2.5 * 25, 25.0)]
         r = rnd.uniform(60.0, 980.0)
         zr = rnd.uniform(2.0, slope_depth(r * math.cos(phi), 0.0) - 4.0)
-        bottom = max(z for _, z in bty)
+        bottom = max(slope_depth(r, 0.0) for r, _ in bty)     # the cell's deepest point: east, at the far end
         with tempfile.TemporaryDirectory() as d:
             shd = bellhop.run_bellhop(PROGRAM, bellhop.env_text(model.freq_hz, profile, bottom, seabed, [10.0],
                                                                 [zr], [r], "I", bty=True), "shd", d,

@@ -137,6 +137,9 @@ class BellhopModel(ChannelModel):
         self._tables()
         self.grids = [_load(str(p), p.stat().st_mtime_ns) for p in paths]
         self._by_sector = [_prepared(g, self.bit_s, self.isi)[:4] for g in self.grids] if self.sectors else []
+        self._by_cell = [np.stack([_prepared(g, self.bit_s, self.isi)[4]
+                                   for g in self.grids[c * self.sectors:(c + 1) * self.sectors]])
+                         for c in range(len(self.cells))] if self.sectors else []
 
     def grid_for(self, tx: Any, rx: Any) -> Grid:
         """The grid a frame from position tx to position rx reads: the grid of a flat bottom, else that of the
@@ -146,7 +149,7 @@ class BellhopModel(ChannelModel):
     def _which(self, s: Any, p: Any) -> int:
         """Index of the (cell, sector) grid for a sender at s and a receiver at p (range-dependent only)."""
         c = self.cells
-        cell = min(range(len(c)), key=lambda i: (c[i][0] - s[0]) ** 2 + (c[i][1] - s[1]) ** 2)
+        cell = 0 if len(c) == 1 else min(range(len(c)), key=lambda i: (c[i][0] - s[0]) ** 2 + (c[i][1] - s[1]) ** 2)
         return cell * self.sectors + sector_of(p[0] - s[0], p[1] - s[1], self.sectors)
 
     def _tables(self) -> None:
@@ -259,21 +262,17 @@ class BellhopModel(ChannelModel):
 
     def _at_many(self, tx: np.ndarray, p: np.ndarray, off_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """`_at` for receivers at positions p (n, 3): TL, delay, late fraction (nan, nan, 0 beyond the ranges)."""
-        if self.sectors:                                 # range-dependent: one gather per (cell, sector) grid
+        if self.sectors:                # range-dependent: the sender's cell's sectors, stacked: one gather
             r = np.hypot(p[:, 0] - tx[0], p[:, 1] - tx[1])
             c = np.array(self.cells)
             cell = int(np.argmin(((c - tx[:2]) ** 2).sum(axis=1)))      # the first nearest, as `_which`
             step = 2 * math.pi / self.sectors
-            which = cell * self.sectors + np.round(np.arctan2(p[:, 1] - tx[1], p[:, 0] - tx[0]) / step).astype(
-                int) % self.sectors
-            v = np.empty((len(p), 3))
-            for w in np.unique(which).tolist():
-                m = which == w
-                g = self.grids[w]
-                with np.errstate(invalid="ignore"):      # below the bottom: TL inf, 0 * inf is nan (lost)
-                    v[m] = _trilinear_stack(g.sd, g.rd, g.rr, _prepared(g, self.bit_s, self.isi)[4],
-                                            np.full(int(m.sum()), -tx[2]), -p[m, 2], r[m])
-                v[m & ((r < g.rr[0]) | (r > g.rr[-1]))] = (math.nan, math.nan, 0.0)
+            k = np.round(np.arctan2(p[:, 1] - tx[1], p[:, 0] - tx[0]) / step).astype(int) % self.sectors
+            g = self.grids[cell * self.sectors]
+            with np.errstate(invalid="ignore"):          # below the bottom: TL inf, 0 * inf is nan (lost)
+                v = _trilinear_stack(g.sd, g.rd, g.rr, self._by_cell[cell], np.full(len(p), -tx[2]), -p[:, 2], r,
+                                     lead=k)
+            v[(r < g.rr[0]) | (r > g.rr[-1])] = (math.nan, math.nan, 0.0)
             return v[:, 0], v[:, 1], v[:, 2]
         sd = self.grid.sd
         zs = np.full(len(p), -tx[2])
@@ -303,7 +302,9 @@ def range_dependent(params: Any, ctx: ModelContext, floor: Any, max_range: float
                     spec: Any) -> tuple[int, list[tuple[float, float]], list[GridSpec]]:
     """The grids of a sloping or gridded bottom: per source cell (the sender's known positions, its start and
     waypoints, on a `positionStep` m lattice) and bearing sector (`sectors` around it), the bottom along the
-    sector's centre line from the cell's centre every rangeStep to past maxRange (a .bty), depths held >= 1 m."""
+    sector's centre line from the cell's centre every rangeStep to past maxRange (a .bty), depths held >= 1 m.
+    A cell's grids share their axes (the .env's depth is the deepest point of all its sectors), so that one
+    gather answers a frame's receivers in every sector."""
     sectors = int(params.get("sectors", "8"))
     step = float(params.get("positionStep", "250"))
     if not (sectors >= 1 and step > 0):
@@ -312,13 +313,15 @@ def range_dependent(params: Any, ctx: ModelContext, floor: Any, max_range: float
     cells = sorted({(round(p[0] / step) * step, round(p[1] / step) * step) for p in known})
     specs = []
     for cx, cy in cells:
+        lines = []
         for k in range(sectors):
             phi = 2 * math.pi * k / sectors
-            bty = [(round(float(r), 6), round(max(1.0, float(floor.depth(cx + r * math.cos(phi),
-                                                                         cy + r * math.sin(phi)))), 6))
-                   for r in np.arange(0.0, max_range + 2.5 * r_step, r_step)]      # as the .bty file has them
-            specs.append(spec(max(z for _, z in bty), bty[0][1], bty,
-                              f" bearing {math.degrees(phi):g} deg from ({cx:g}, {cy:g})"))
+            lines.append([(round(float(r), 6), round(max(1.0, float(floor.depth(cx + r * math.cos(phi),
+                                                                                 cy + r * math.sin(phi)))), 6))
+                          for r in np.arange(0.0, max_range + 2.5 * r_step, r_step)])   # as the .bty has them
+        deepest = max(z for line in lines for _, z in line)     # one depth axis for the cell's sectors
+        specs += [spec(deepest, line[0][1], line, f" bearing {360 * k / sectors:g} deg from ({cx:g}, {cy:g})")
+                  for k, line in enumerate(lines)]
     return sectors, cells, specs
 
 
@@ -375,8 +378,9 @@ MANY = 24
 
 
 def _trilinear_stack(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarray, q0: np.ndarray,
-                     q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """`_trilinear` of every last-axis column of v at once: (n, v.shape[-1])."""
+                     q1: np.ndarray, q2: np.ndarray, lead: np.ndarray | None = None) -> np.ndarray:
+    """`_trilinear` of every last-axis column of v at once: (n, v.shape[-1]); `lead`: each query's index on
+    v's first axis (a stack of grids on the same axes)."""
     (i, f), (j, g), (k, h) = _axis(a0, q0), _axis(a1, q1), _axis(a2, q2)
     i1 = np.minimum(i + 1, len(a0) - 1)
     j1 = np.minimum(j + 1, len(a1) - 1)
@@ -385,7 +389,7 @@ def _trilinear_stack(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarr
     for ii, wi in ((i, 1 - f), (i1, f)):
         for jj, wj in ((j, 1 - g), (j1, g)):
             for kk, wk in ((k, 1 - h), (k1, h)):
-                out += (wi * wj * wk)[:, None] * v[ii, jj, kk]
+                out += (wi * wj * wk)[:, None] * (v[ii, jj, kk] if lead is None else v[lead, ii, jj, kk])
     return out
 
 
