@@ -1,6 +1,7 @@
 """The transmission-loss field of a link (docs/ocean.md): for every flow whose sender uses the channel model
 `bellhop`, Bellhop's TL over range and depth from the sender (its cached grid, at the grid's source depth
-nearest the sender's), with the receiver where each of the flow's frames reached it (delivered: a dot,
+nearest the sender's; over a sloping bottom, the grid of the sender's cell and of the bearing to the flow's
+destination at the flow's start), with the receiver where each of the flow's frames reached it (delivered: a dot,
 lost: a cross).  `uwsimnet plot TRACE --scene SCENE` draws them beside the trace's figures."""
 
 from __future__ import annotations
@@ -54,8 +55,10 @@ def plot_tl_field(net: Any, trace: str | PathLike[str], out_dir: str | PathLike[
         model = sender.error
         if not isinstance(model, BellhopModel):
             continue
-        g = model.grid
-        i = int(np.argmin(np.abs(g.sd - (-net.poses.points(flow.start)[sender.vehicle_index][2]))))
+        at = net.poses.points(flow.start)
+        dst = next((m for m in net.modems.values() if m.address == flow.dst and m is not sender), None)
+        g = model.grid_for(at[sender.vehicle_index], at[dst.vehicle_index]) if dst is not None else model.grid
+        i = int(np.argmin(np.abs(g.sd - (-at[sender.vehicle_index][2]))))
         fig, ax = plt.subplots(figsize=(8, 4.5))
         mesh = ax.pcolormesh(g.rr, g.rd, np.clip(g.tl[i], 30, 110), shading="auto", cmap="viridis_r")
         fig.colorbar(mesh, ax=ax, label="transmission loss (dB)")
@@ -74,7 +77,12 @@ def plot_tl_field(net: Any, trace: str | PathLike[str], out_dir: str | PathLike[
         ax.invert_yaxis()
         ax.set_xlabel("range from the sender (m)")
         ax.set_ylabel("depth (m)")
-        ax.set_title(f"{flow.name}: TL from {flow.src} at {g.sd[i]:g} m, {model.freq_hz / 1e3:g} kHz (Bellhop)")
+        toward = ""
+        if model.sectors and dst is not None:             # a sloping bottom: the sector this field is along
+            s, d = at[sender.vehicle_index], at[dst.vehicle_index]
+            toward = f", bearing {math.degrees(math.atan2(d[1] - s[1], d[0] - s[0])) % 360:.0f} deg"
+        ax.set_title(f"{flow.name}: TL from {flow.src} at {g.sd[i]:g} m, {model.freq_hz / 1e3:g} kHz{toward}"
+                     " (Bellhop)")
         if marks["rx"] or marks["lost"]:
             ax.legend(loc="lower right")
         path = out / f"tl-field-{flow.name}.png"

@@ -26,6 +26,7 @@ from typing import Any
 
 from ..errors import UserError
 from .api import run, run_key, scene_digest, version
+from .grids import precompute
 from .overrides import apply
 from .virtual import load_scene_file
 
@@ -161,6 +162,7 @@ def _local(jobs: list[dict[str, Any]], workers: int) -> Iterable[dict[str, Any]]
     from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: PLC0415
 
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as ex:
+        precompute(jobs, ex)                    # Bellhop grids first, on these workers (app/grids.py)
         futs = [ex.submit(run_one, j) for j in jobs]
         try:
             for f in as_completed(futs):
@@ -189,6 +191,7 @@ def _dask(jobs: list[dict[str, Any]], workers: int, address: str) -> Iterable[di
             cluster.close()
         raise UserError(f"--scheduler {address}: cannot connect ({' '.join(str(e).split())})") from None
     try:
+        precompute(jobs, client.get_executor(pure=False))   # Bellhop grids first, on the cluster (app/grids.py)
         futs = client.map(run_one, jobs, pure=False)
         for f in as_completed(futs):
             yield f.result()

@@ -27,7 +27,7 @@ from ..phy.models import ChannelModel
 from ..phy.modem import Modem
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Sequence
 
     from ..kernel.scheduler import Scheduler
     from ..phy.acoustic import AcousticChannelParams, AcousticLink, AcousticModemParams, FixedBerLink
@@ -142,7 +142,8 @@ def modem_error_model(device: Device, tx_channel: Channel,
 
 
 def build_channel_model(device: Device, tx_spec: Channel, rx_spec: Channel, seed: int,
-                        environment: Environment | None = None) -> ChannelModel:
+                        environment: Environment | None = None,
+                        positions: Sequence[Sequence[float]] = ()) -> ChannelModel:
     """The channel model a device transmits with: its channel's `<channelModel>`, else the device's default
     (`Device.default_model`), made by the model's `from_context` (phy.models).  ValueError: one line."""
     from ..phy.models import ModelContext
@@ -150,7 +151,7 @@ def build_channel_model(device: Device, tx_spec: Channel, rx_spec: Channel, seed
 
     builtins = {"expression": lambda: RateErrorModel(device.error.expr, device.error.unit),
                 "acoustic": lambda: modem_error_model(device, tx_spec, rx_spec)}
-    ctx = ModelContext(device, tx_spec, seed, builtins, device.default_model, environment)
+    ctx = ModelContext(device, tx_spec, seed, builtins, device.default_model, environment, positions)
     spec = tx_spec.model
     name = device.default_model if spec is None else spec.name
     cls = resolve_model(name)
@@ -228,10 +229,13 @@ def make_mac(modem: Modem, spec: MacSpec) -> Mac:
 
 def build_modem(cfg: Device, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
                 tx: PhyChannel, rx: PhyChannel, seeds: Callable[[str, str], int],
-                tx_spec: Channel, rx_spec: Channel, environment: Environment | None = None) -> Modem:
-    """One modem with its channel model and its MAC, listening on its rx channel."""
+                tx_spec: Channel, rx_spec: Channel, environment: Environment | None = None,
+                positions: Sequence[Sequence[float]] = ()) -> Modem:
+    """One modem with its channel model and its MAC, listening on its rx channel (`positions`: where the scene
+    puts its vehicle, for a model that needs it before the run)."""
     try:
-        error = build_channel_model(cfg, tx_spec, rx_spec, seeds("channel", cfg.dccomms_id), environment)
+        error = build_channel_model(cfg, tx_spec, rx_spec, seeds("channel", cfg.dccomms_id), environment,
+                                    positions)
     except ValueError as e:
         line = tx_spec.model.line if tx_spec.model is not None else cfg.error.line or cfg.line
         raise BuildError(f"device {cfg.dccomms_id!r}: {e}", line) from None

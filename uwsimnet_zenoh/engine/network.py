@@ -83,7 +83,7 @@ class Network:
                             for ch in (cfg.tx_channel, cfg.rx_channel))
         m = build_modem(cfg, vehicle, self.poses.index[vehicle], self.sched, self.tracer,
                         self.channels[cfg.tx_channel], self.channels[cfg.rx_channel], self.seeds, tx_spec, rx_spec,
-                        self.scene.environment)
+                        self.scene.environment, _known_positions(self.scene, vehicle))
         self.modems[cfg.dccomms_id] = m
         return m
 
@@ -171,3 +171,11 @@ class Network:
                                **({"framing": m.framing.name} if m.framing is not None else {})}
                         for m in self.modems.values()},
         }
+
+
+def _known_positions(scene: Any, vehicle: str) -> list[tuple[float, float, float]]:
+    """Where the scene puts a vehicle: its trajectory's waypoints, else its position (none for one not in it)."""
+    v = next((v for v in scene.vehicles if v.name == vehicle), None)
+    if v is None:
+        return []
+    return [(w.x, w.y, w.z) for w in v.trajectory] or [tuple(v.position)]

@@ -14,28 +14,21 @@ the fraction f of the arrivals' energy that comes more than one bit after the fi
 SINR = (1 - f) SNR / (1 + f SNR), and Eb/N0 = SINR B/R (less the implementation loss).  The arrival is the
 delay, taken where a moving receiver is when the sound reaches it (the grid's delay field solved for the
 receiver's constant velocity); the Doppler factor as the `ocean` model's, with the profile's mean speed.
-A receiver with no arrival, or beyond the grid, loses the frame.  The environment is range-independent
-here: the depth below the origin.
+A receiver with no arrival, or beyond the grid, loses the frame.  A flat bottom is range-independent; a
+sloping or gridded one gives a grid per (source cell, bearing sector), each with the bottom along the
+sector's centre line (`range_dependent`; docs/ocean.md states the approximation).
 The grid's source depths are `sources` (or every `sourceStep` m); a sender far from all of them whose receiver
 is nearer one swaps the two ends (reciprocity: the same TL and travel time both ways).
 
-The grid is computed when the network is built (never per frame): the one place below the sans-IO line that
-starts a program, and only when the cache has no grid for this content.
+The grids are computed when the network is built (never per frame), by phy/bellhop_grid.py, and only when the
+cache has none for this content.
 """
 
 from __future__ import annotations
 
-import hashlib
-import logging
 import math
 import os
-import re
-import shutil
-import struct
-import subprocess
-import tempfile
 from bisect import bisect_right
-from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -43,289 +36,39 @@ from typing import Any
 import numpy as np
 
 from .acoustic import _BER_SCALAR, MODULATIONS, AcousticLink
+from .bellhop_grid import (
+    GRID_VERSION,
+    HOWTO,
+    LATE_S,
+    Grid,
+    GridSpec,
+    _axis,
+    bty_text,
+    cache_dir,
+    compute_grid,
+    compute_grids,
+    env_text,
+    find_program,
+    grid_executor,
+    program_tag,
+    read_arrivals,
+    read_shd,
+    run_bellhop,
+)
 from .models import Answer, ChannelModel, ModelContext, Query
 from .ocean import doppler_factor
 
-log = logging.getLogger("uwsimnet.bellhop")
-GRID_VERSION = "uwsimnet-bellhop-grid-4"
-LATE_S = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1)
-"""Delays after the first arrival (s) at which the grid keeps the fraction of arrival energy still to come."""
-HOWTO = ("Bellhop not found: run `make bellhop` (installs the aubellhop wheel's binary into .tools/bellhop),"
-         " or name the program in <program> or in UWSIMNET_BELLHOP")
-
-
-def find_program(explicit: str | None = None) -> str | None:
-    """The Bellhop binary: `explicit`, $UWSIMNET_BELLHOP, `bellhop.exe`/`bellhop` on PATH, or `make bellhop`'s."""
-    for cand in (explicit, os.environ.get("UWSIMNET_BELLHOP")):
-        if cand:
-            return cand if os.access(cand, os.X_OK) else None
-    for name in ("bellhop.exe", "bellhop"):
-        if (p := shutil.which(name)) is not None:
-            return p
-    root = Path(__file__).resolve().parents[2] / ".tools" / "bellhop"
-    found = sorted(root.glob("lib/python3*/site-packages/aubellhop/bin/bellhop.exe"))
-    return str(found[0]) if found else None
-
-
-def program_tag(program: str) -> str:
-    """The Bellhop build in a grid's cache name: the first 12 hex digits of the SHA-256 of the program's bytes
-    (a new Bellhop, even of the same version number, computes its own grids); kept per (path, size, mtime)."""
-    st = os.stat(program)
-    return _tag(os.path.realpath(program), st.st_size, st.st_mtime_ns)
-
-
-@lru_cache(maxsize=8)
-def _tag(path: str, _size: int, _mtime_ns: int) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(1 << 20):
-            h.update(chunk)
-    return h.hexdigest()[:12]
-
-
-def env_text(freq_hz: float, profile: list[tuple[float, float]], bottom_m: float, seabed: tuple[float, float, float],
-             sds: list[float], rds: list[float], rrs_m: list[float], run: str, beams: int = 0) -> str:
-    """A Bellhop .env: one fluid layer (C-linear profile, vacuum surface, Thorp volume attenuation) over an
-    acousto-elastic half-space (sound speed m/s, density g/cm^3, attenuation dB/wavelength); sources,
-    receivers and ranges as given."""
-    pts = [(d, c) for d, c in profile if d < bottom_m]
-    pts.append((bottom_m, _speed_at(profile, bottom_m)))
-    cp, rho, att = seabed
-    lines = ["'uwsimnet'", f"{freq_hz:.6f}", "1", "'CVWT'", f"0 0.0 {bottom_m:.6f}"]
-    lines += [f"{d:.6f} {c:.6f} /" for d, c in pts]
-    lines += ["'A' 0.0", f"{bottom_m:.6f} {cp:.6f} 0.0 {rho:.6f} {att:.6f} /"]
-    for vals, scale in ((sds, 1.0), (rds, 1.0), (rrs_m, 1e-3)):
-        lines += [str(len(vals)), " ".join(f"{v * scale:.6f}" for v in vals) + " /"]
-    lines += [f"'{run}'", str(beams), "-89.0 89.0 /", f"0.0 {bottom_m * 1.01:.6f} {rrs_m[-1] * 1.01e-3:.6f}"]
-    return "\n".join(lines) + "\n"
-
-
-def _speed_at(profile: list[tuple[float, float]], z: float) -> float:
-    ds, cs = [d for d, _ in profile], [c for _, c in profile]
-    return float(np.interp(z, ds, cs))
-
-
-def read_shd(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A Bellhop .shd (the Acoustics Toolbox's binary shade file): records of 4*recl bytes; record 2 holds
-    the counts, 7-9 the source depths, receiver depths and ranges, 10 on the pressure per (source, depth)."""
-    recl = struct.unpack_from("<i", data, 0)[0]
-    rec = 4 * recl
-    _nfreq, ntheta, _nsx, _nsy, nsd, nrd, nrr = struct.unpack_from("<7i", data, 2 * rec)
-    if ntheta != 1:
-        raise ValueError("a .shd with more than one bearing")
-    sd = np.frombuffer(data, "<f4", nsd, 7 * rec).astype(float)
-    rd = np.frombuffer(data, "<f4", nrd, 8 * rec).astype(float)
-    rr = np.frombuffer(data, "<f8" if _rr_is_double(data, rec, nrr) else "<f4", nrr, 9 * rec).astype(float)
-    p = np.empty((nsd, nrd, nrr), dtype=complex)
-    for i in range(nsd):
-        for j in range(nrd):
-            v = np.frombuffer(data, "<f4", 2 * nrr, (10 + i * nrd + j) * rec).astype(float)
-            p[i, j] = v[0::2] + 1j * v[1::2]
-    return sd, rd, rr, p
-
-
-def _rr_is_double(data: bytes, rec: int, nrr: int) -> bool:
-    """Ranges are written as doubles by recent Bellhop and singles by old ones: doubles read as increasing."""
-    if nrr < 2 or 9 * rec + 8 * nrr > len(data):
-        return False
-    v = np.frombuffer(data, "<f8", nrr, 9 * rec)
-    return bool(np.all(np.isfinite(v)) and np.all(np.diff(v) > 0) and v[-1] < 1e8)
-
-
-def read_arrivals(text: str, window_db: float = 20.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per (source depth, receiver depth, range) of a Bellhop ascii .arr file ('2D'): the first significant
-    arrival (earliest within `window_db` of the strongest; nan: none), the rms delay spread (s), and the
-    fraction of the arrivals' energy (sum |A|^2) that comes later than first + each of LATE_S.
-    Each arrival's amplitude is |A| exp(omega Im(tau)): Bellhop leaves the volume attenuation (top option 'T')
-    out of the amplitude column and writes it as the delay's imaginary part (aubellhop's readers.py builds
-    the complex amplitude A exp(-i(phase + omega tau)) from the same columns)."""
-    head = re.finditer(r"\S+", text)
-    tok = [m.group() for _, m in zip(range(2), head, strict=False)]    # range first: zip stops before head
-    if len(tok) < 2 or "2D" not in tok[0]:
-        raise ValueError("not a 2D Bellhop arrivals file")
-    omega = 2.0 * math.pi * float(tok[1])
-    counts = []
-    for _ in range(3):                            # the source depths, receiver depths, ranges: a count, values
-        m = next(head, None)
-        if m is None:
-            raise ValueError("a Bellhop .arr cut short in its header")
-        n, end = int(m.group()), m.end()
-        counts.append(n)
-        for _, m in zip(range(n), head, strict=False):
-            end = m.end()
-    nsd, nrd, nrr = counts
-    data = np.fromstring(text[end:], sep=" ")    # the rest is numbers: counts and 8-column arrival rows
-    first = np.full((nsd, nrd, nrr), np.nan)
-    spread = np.full((nsd, nrd, nrr), np.nan)
-    late = np.zeros((nsd, nrd, nrr, len(LATE_S)))
-    rows, cells = [], []                          # where each cell's rows start in `data`, and its index
-    pos = 0
-    counts_at = data.tolist()
-    for i in range(nsd):
-        pos += 1                                  # the source's largest count
-        for j in range(nrd):
-            for k in range(nrr):
-                n = int(counts_at[pos]) if pos < len(counts_at) else -1
-                pos += 1
-                if n:
-                    rows.append((pos, n))
-                    cells.append((i, j, k))
-                    pos += 8 * n
-    if pos != len(data):
-        raise ValueError(f"a Bellhop .arr whose counts do not match its {len(data)} numbers")
-    if not rows:
-        return first, spread, late
-    starts = np.array([r for r, _ in rows])
-    ns = np.array([n for _, n in rows])
-    idx = np.repeat(starts, ns) + 8 * (np.arange(ns.sum()) - np.repeat(np.cumsum(ns) - ns, ns))
-    a = data[idx[:, None] + np.arange(8)]         # every arrival row, cell after cell
-    cell = np.repeat(np.arange(len(rows)), ns)
-    seg = np.cumsum(ns) - ns                      # each cell's first row in `a`
-    amp, delay = np.abs(a[:, 0]) * np.exp(omega * a[:, 3]), a[:, 2]
-    top = np.maximum.reduceat(amp, seg)
-    some = top > 0.0                              # every path attenuated to nothing: no arrival
-    strong = amp >= (top * 10 ** (-window_db / 20))[cell]
-    f = np.minimum.reduceat(np.where(strong, delay, np.inf), seg)
-    w = amp ** 2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        total = np.add.reduceat(w, seg)
-        mean = np.add.reduceat(w * delay, seg) / total
-        sp = np.sqrt(np.maximum(0.0, np.add.reduceat(w * (delay - mean[cell]) ** 2, seg) / total))
-        lt = np.stack([np.add.reduceat(w * (delay > f[cell] + off), seg) / total for off in LATE_S], axis=-1)
-    ci, cj, ck = (np.array(x)[some] for x in zip(*cells, strict=True))
-    first[ci, cj, ck] = f[some]
-    spread[ci, cj, ck] = sp[some]
-    late[ci, cj, ck] = lt[some]
-    return first, spread, late
-
-
-class Grid:
-    """TL (dB) and first-arrival delay (s) on (source depth, receiver depth, range) axes; trilinear lookup."""
-
-    def __init__(self, sd: np.ndarray, rd: np.ndarray, rr: np.ndarray, tl: np.ndarray, delay: np.ndarray,
-                 spread: np.ndarray, late: np.ndarray) -> None:
-        self.sd, self.rd, self.rr = (np.asarray(a, dtype=float) for a in (sd, rd, rr))
-        self.tl, self.delay, self.spread, self.late = (np.asarray(a, dtype=float) for a in (tl, delay, spread, late))
-
-    def save(self, path: str | Path) -> None:
-        tmp = f"{path}.tmp{os.getpid()}.npz"
-        np.savez_compressed(tmp, sd=self.sd, rd=self.rd, rr=self.rr, tl=self.tl, delay=self.delay,
-                            spread=self.spread, late=self.late)
-        os.replace(tmp, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> Grid:
-        with np.load(path) as z:
-            return cls(z["sd"], z["rd"], z["rr"], z["tl"], z["delay"], z["spread"], z["late"])
-
-    def late_fraction(self, zs: Any, zr: Any, r: Any, after_s: float) -> np.ndarray:
-        """The fraction of the arrivals' energy later than first + after_s (log-linear between LATE_S)."""
-        zs, zr, r = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (zs, zr, r))
-        x = math.log(min(max(after_s, LATE_S[0]), LATE_S[-1]))
-        xs = [math.log(v) for v in LATE_S]
-        m = min(max(int(np.searchsorted(xs, x, side="right")) - 1, 0), len(xs) - 2)
-        w = (x - xs[m]) / (xs[m + 1] - xs[m])
-        a = _trilinear(self.sd, self.rd, self.rr, self.late[..., m], zs, zr, r)
-        b = _trilinear(self.sd, self.rd, self.rr, self.late[..., m + 1], zs, zr, r)
-        return (1 - w) * a + w * b
-
-    def lookup(self, zs: Any, zr: Any, r: Any) -> tuple[np.ndarray, np.ndarray]:
-        """TL and delay at source depths zs, receiver depths zr, ranges r (arrays): nan beyond the ranges."""
-        zs, zr, r = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (zs, zr, r))
-        out_tl = _trilinear(self.sd, self.rd, self.rr, self.tl, zs, zr, r)
-        out_dl = _trilinear(self.sd, self.rd, self.rr, self.delay, zs, zr, r)
-        beyond = (r > self.rr[-1]) | (r < self.rr[0])
-        out_tl[beyond] = np.nan
-        out_dl[beyond] = np.nan
-        return out_tl, out_dl
-
-
-def _axis(ax: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    if len(ax) == 1:
-        return np.zeros(len(q), dtype=int), np.zeros(len(q))
-    q = np.clip(q, ax[0], ax[-1])
-    i = np.clip(np.searchsorted(ax, q, side="right") - 1, 0, len(ax) - 2)
-    return i, (q - ax[i]) / (ax[i + 1] - ax[i])
-
-
-def _trilinear(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarray, q0: np.ndarray, q1: np.ndarray,
-               q2: np.ndarray) -> np.ndarray:
-    (i, f), (j, g), (k, h) = _axis(a0, q0), _axis(a1, q1), _axis(a2, q2)
-    i1 = np.minimum(i + 1, len(a0) - 1)
-    j1 = np.minimum(j + 1, len(a1) - 1)
-    k1 = np.minimum(k + 1, len(a2) - 1)
-    out = np.zeros(len(q0))
-    for ii, wi in ((i, 1 - f), (i1, f)):
-        for jj, wj in ((j, 1 - g), (j1, g)):
-            for kk, wk in ((k, 1 - h), (k1, h)):
-                out += wi * wj * wk * v[ii, jj, kk]
-    return out
-
-
-def run_bellhop(program: str, env: str, want: str, workdir: str, timeout: float = 3600.0) -> bytes:
-    """Run Bellhop on one .env text in `workdir`; the bytes of its output file `want` ('shd' or 'arr').
-    Every failure is one line (ValueError): the end of Bellhop's .prt, a timeout, a program that cannot run."""
-    base = os.path.join(workdir, "run")
-    Path(base + ".env").write_text(env)
-    try:
-        done = subprocess.run([program, base], cwd=workdir, capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        raise ValueError(f"Bellhop ({program}) ran over its timeout of {timeout:g} s (parameter <timeout>)") from None
-    except OSError as e:
-        raise ValueError(f"Bellhop ({program}) cannot run: {e.strerror or e}") from None
-    out = Path(f"{base}.{want}")
-    if done.returncode != 0 or not out.exists():
-        prt = Path(base + ".prt")
-        tail = prt.read_text(errors="replace").strip().splitlines()[-3:] if prt.exists() else [done.stderr.strip()]
-        if not any(tail):
-            tail = [f"exit status {done.returncode}, no .{want} and no .prt written"]
-        raise ValueError(f"Bellhop failed ({program}): {' | '.join(tail)}")
-    return out.read_bytes()
-
-
-def compute_grid(program: str, freq_hz: float, profile: list[tuple[float, float]], bottom_m: float,
-                 seabed: tuple[float, float, float], sds: list[float], rds: list[float], rrs_m: list[float],
-                 workers: int = 2, timeout: float = 3600.0) -> Grid:
-    """The grid from Bellhop: one TL run ('I') and one arrivals run ('A') per source depth, in parallel
-    (`timeout`: seconds per run)."""
-    def one(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        with tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d1, \
-                tempfile.TemporaryDirectory(prefix="uwsimnet-bellhop-") as d2:
-            shd = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "I"), "shd", d1,
-                              timeout)
-            arr = run_bellhop(program, env_text(freq_hz, profile, bottom_m, seabed, [sd], rds, rrs_m, "A"), "arr", d2,
-                              timeout)
-        _, _, _, p = read_shd(shd)
-        with np.errstate(divide="ignore"):
-            tl = -20.0 * np.log10(np.abs(p[0]))
-        first, spread, late = read_arrivals(arr.decode())
-        return tl, first[0], spread[0], late[0]
-
-    done = [0]
-
-    def counted(sd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        out = one(sd)
-        done[0] += 1                              # progress: one line per source depth (logger uwsimnet.bellhop)
-        log.info("bellhop grid: %d/%d source depths (%.1f m done)", done[0], len(sds), sd)
-        return out
-
-    log.info("bellhop grid: %d source depths x %d depths x %d ranges at %.0f Hz", len(sds), len(rds), len(rrs_m),
-             freq_hz)
-    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
-        parts = list(pool.map(counted, sds))
-    return Grid(np.array(sds), np.array(rds), np.array(rrs_m), *(np.stack([p[n] for p in parts]) for n in range(4)))
-
-
-def cache_dir() -> Path:
-    return Path(os.environ.get("UWSIMNET_CACHE") or Path.home() / ".cache" / "uwsimnet") / "bellhop"
+__all__ = ["GRID_VERSION", "HOWTO", "LATE_S", "MANY", "BellhopModel", "Grid", "GridSpec", "bty_text", "cache_dir",
+           "compute_grid", "compute_grids", "env_text", "find_program", "grid_executor", "mean_speeds",
+           "program_tag", "range_dependent", "read_arrivals", "read_shd", "run_bellhop", "sector_of"]
 
 
 class BellhopModel(ChannelModel):
     """Ray-traced acoustics for an AcousticCommsDevice in the scene's <environment> (module docstring)."""
 
     family = "bellhop"
-    params_known = ("program", "workers", "isi", "timeout")
-    """Read only when the grid is not cached yet."""
+    params_known = ("program", "workers", "isi", "timeout", "sectors", "positionStep")
+    """Read only when the grid is not cached yet, or only with a sloping or gridded bottom."""
 
     def __init__(self, params: Any, ctx: ModelContext) -> None:
         env = ctx.environment
@@ -343,58 +86,86 @@ class BellhopModel(ChannelModel):
             raise ValueError(f"isi must be on or off, not {isi!r}")
         self.isi = isi == "on"
         self.ber = _BER_SCALAR[m.modulation]         # BER of linear Eb/N0, on floats
-        bottom = float(env.seafloor().depth(0.0, 0.0))
         self.profile = env.sound_speed()
         max_range = float(params.get("maxRange", "5000"))
         r_step = float(params.get("rangeStep", "25"))
         z_step = float(params.get("depthStep", "2"))
-        z_max = min(float(params.get("maxDepth", str(bottom))), bottom)
+        max_depth = params.get("maxDepth")
         s_step = float(params.get("sourceStep", "5"))
-        if not (max_range > 0 and r_step > 0 and z_step > 0 and s_step > 0 and z_max > 0):
+        given = [float(x) for x in params.get("sources", "").replace(",", " ").split()]
+        if not (max_range > 0 and r_step > 0 and z_step > 0 and s_step > 0 and
+                (max_depth is None or float(max_depth) > 0)):
             raise ValueError("maxRange, rangeStep, depthStep, maxDepth and sourceStep must be > 0")
         rrs = [float(x) for x in np.arange(r_step, max_range + r_step / 2, r_step)]
-        rds = [float(x) for x in np.arange(0.0, z_max + z_step / 2, z_step)]
-        rds = sorted({min(max(z, 0.5), bottom - 0.5) for z in rds})
-        given = params.get("sources", "").replace(",", " ").split()
-        src = [float(x) for x in given] if given else [float(x) for x in np.arange(0.0, z_max + s_step / 2, s_step)]
-        sds = sorted({min(max(z, 0.5), bottom - 0.5) for z in src})
         profile = [tuple(p) for p in env.profile]
         seabed = (env.seabed_speed_mps, env.seabed_density, env.seabed_attenuation)
-        key = hashlib.sha256(repr((GRID_VERSION, self.freq_hz, profile, bottom, seabed, sds, rds, rrs)).encode())
+
+        def spec(bottom: float, local: float, bty: list[tuple[float, float]] | None = None,
+                 label: str = "") -> GridSpec:
+            z_max = min(float(max_depth) if max_depth is not None else bottom, bottom)
+            rds = sorted({min(max(float(z), 0.5), bottom - 0.5) for z in np.arange(0.0, z_max + z_step / 2, z_step)})
+            src = given or [float(x) for x in np.arange(0.0, min(z_max, local) + s_step / 2, s_step)]
+            sds = sorted({min(max(z, 0.5), local - 0.5) for z in src})
+            return GridSpec(self.freq_hz, profile, bottom, seabed, sds, rds, rrs, bty, label)
+
+        floor = env.seafloor()
+        self.cells: list[tuple[float, float]] = []
+        self.sectors = 0
+        if env.bathymetry == "flat":
+            bottom = float(floor.depth(0.0, 0.0))
+            specs = [spec(bottom, bottom)]
+        else:
+            self.sectors, self.cells, specs = range_dependent(params, ctx, floor, max_range, r_step, spec)
         where = Path(params.get("cache", "") or cache_dir())
-        program = find_program(params.get("program"))       # the cache name is <content>-<program_tag>.npz;
-        stem = key.hexdigest()[:32]                          # without the program, any Bellhop's grid serves
-        found = sorted(where.glob(f"{stem}*.npz")) if program is None else []     # (untagged: before tags)
-        self.path = found[-1] if found else where / f"{stem}-{program_tag(program) if program else 'none'}.npz"
-        if self.path.exists():
-            self.grid = _load(str(self.path), self.path.stat().st_mtime_ns)
-            self._tables()
-            return
-        if program is None:
-            raise ValueError(HOWTO)
-        timeout = float(params.get("timeout", "3600"))
-        if not timeout > 0:
-            raise ValueError("timeout must be > 0 (seconds per Bellhop run)")
-        self.grid = compute_grid(program, self.freq_hz, profile, bottom, seabed, sds, rds, rrs,
-                                 workers=int(params.get("workers", str(os.cpu_count() or 1))), timeout=timeout)
-        where.mkdir(parents=True, exist_ok=True)
-        self.grid.save(self.path)
+        program = find_program(params.get("program"))
+        paths = [_cached(where, s.key(), program) for s in specs]
+        missing = [i for i, p in enumerate(paths) if not p.exists() and p not in paths[:i]]   # each file once
+        if missing:
+            if program is None:
+                raise ValueError(HOWTO)
+            timeout = float(params.get("timeout", "3600"))
+            if not timeout > 0:
+                raise ValueError("timeout must be > 0 (seconds per Bellhop run)")
+            grids = compute_grids(program, [specs[i] for i in missing],
+                                  workers=int(params.get("workers", str(os.cpu_count() or 1))), timeout=timeout)
+            where.mkdir(parents=True, exist_ok=True)
+            for i, g in zip(missing, grids, strict=True):
+                g.save(paths[i])
+        self.paths = paths
+        self.path = paths[0]
+        self.grid = _load(str(self.path), self.path.stat().st_mtime_ns)
         self._tables()
+        self.grids = [_load(str(p), p.stat().st_mtime_ns) for p in paths]
+        self._by_sector = [_prepared(g, self.bit_s, self.isi)[:4] for g in self.grids] if self.sectors else []
+        self._by_cell = [np.stack([_prepared(g, self.bit_s, self.isi)[4]
+                                   for g in self.grids[c * self.sectors:(c + 1) * self.sectors]])
+                         for c in range(len(self.cells))] if self.sectors else []
+
+    def grid_for(self, tx: Any, rx: Any) -> Grid:
+        """The grid a frame from position tx to position rx reads: the grid of a flat bottom, else that of the
+        sender's nearest cell and the receiver's bearing sector."""
+        return self.grids[self._which(tx, rx)] if self.sectors else self.grid
+
+    def _which(self, s: Any, p: Any) -> int:
+        """Index of the (cell, sector) grid for a sender at s and a receiver at p (range-dependent only)."""
+        c = self.cells
+        cell = 0 if len(c) == 1 else min(range(len(c)), key=lambda i: (c[i][0] - s[0]) ** 2 + (c[i][1] - s[1]) ** 2)
+        return cell * self.sectors + sector_of(p[0] - s[0], p[1] - s[1], self.sectors)
 
     def _tables(self) -> None:
         """The grid as Python lists for the per-frame path (a few receivers: math beats numpy's call cost) and
         as one stacked array for the numpy path; shared by the models of one grid, bit rate and ISI setting."""
         self._axes, self._tl, self._dl, self._late, self._stack = _prepared(self.grid, self.bit_s, self.isi)
 
-    def _point(self, zs: float, zr: float, r: float) -> tuple[float, float, float]:
+    def _point(self, zs: float, zr: float, r: float, tables: Any = None) -> tuple[float, float, float]:
         """TL, delay and late fraction at one geometry (trilinear, depths held at the grid's ends; nan beyond
-        its ranges): the same arithmetic as `Grid.lookup`, on lists."""
-        sd, rd, rr = self._axes
+        its ranges): the same arithmetic as `Grid.lookup`, on lists (`tables`: a sector's, else the grid's)."""
+        (sd, rd, rr), tl, dl, late = tables or (self._axes, self._tl, self._dl, self._late)
         if r < rr[0] or r > rr[-1]:
             return math.nan, math.nan, 0.0
         (i, i1, f), (j, j1, g), (k, k1, h) = _locate(sd, zs), _locate(rd, zr), _locate(rr, r)
         out = []
-        for v in (self._tl, self._dl, self._late):
+        for v in (tl, dl, late):
             a, b = v[i], v[i1]
             lo = (1 - g) * ((1 - h) * a[j][k] + h * a[j][k1]) + g * ((1 - h) * a[j1][k] + h * a[j1][k1])
             hi = (1 - g) * ((1 - h) * b[j][k] + h * b[j][k1]) + g * ((1 - h) * b[j1][k] + h * b[j1][k1])
@@ -403,6 +174,9 @@ class BellhopModel(ChannelModel):
 
     def _at(self, tx: Any, p: Any, zs0: float, off_s: float) -> tuple[float, float, float]:
         """TL, delay, late fraction from the sender `tx` to a receiver at position p."""
+        if self.sectors:                                        # range-dependent: the grid of the sender's
+            s = tx.position                                     # nearest cell and the receiver's bearing
+            return self._point(zs0, -p[2], math.hypot(p[0] - s[0], p[1] - s[1]), self._by_sector[self._which(s, p)])
         zs, zr = zs0, -p[2]
         if off_s > min(abs(zr - s) for s in self._axes[0]):    # reciprocity: a sender off the grid's source
             zs, zr = zr, zs                                     # depths, to a receiver on one, swaps the ends
@@ -488,6 +262,18 @@ class BellhopModel(ChannelModel):
 
     def _at_many(self, tx: np.ndarray, p: np.ndarray, off_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """`_at` for receivers at positions p (n, 3): TL, delay, late fraction (nan, nan, 0 beyond the ranges)."""
+        if self.sectors:                # range-dependent: the sender's cell's sectors, stacked: one gather
+            r = np.hypot(p[:, 0] - tx[0], p[:, 1] - tx[1])
+            c = np.array(self.cells)
+            cell = int(np.argmin(((c - tx[:2]) ** 2).sum(axis=1)))      # the first nearest, as `_which`
+            step = 2 * math.pi / self.sectors
+            k = np.round(np.arctan2(p[:, 1] - tx[1], p[:, 0] - tx[0]) / step).astype(int) % self.sectors
+            g = self.grids[cell * self.sectors]
+            with np.errstate(invalid="ignore"):          # below the bottom: TL inf, 0 * inf is nan (lost)
+                v = _trilinear_stack(g.sd, g.rd, g.rr, self._by_cell[cell], np.full(len(p), -tx[2]), -p[:, 2], r,
+                                     lead=k)
+            v[(r < g.rr[0]) | (r > g.rr[-1])] = (math.nan, math.nan, 0.0)
+            return v[:, 0], v[:, 1], v[:, 2]
         sd = self.grid.sd
         zs = np.full(len(p), -tx[2])
         zr = -p[:, 2]
@@ -497,6 +283,46 @@ class BellhopModel(ChannelModel):
         v = _trilinear_stack(sd, self.grid.rd, self.grid.rr, self._stack, zs, zr, r)
         v[(r < self.grid.rr[0]) | (r > self.grid.rr[-1])] = (math.nan, math.nan, 0.0)
         return v[:, 0], v[:, 1], v[:, 2]
+
+
+def _cached(where: Path, stem: str, program: str | None) -> Path:
+    """The cache file of a grid: <content>-<program_tag>.npz; without the program, any Bellhop's grid serves
+    (and an untagged one, from before the tags)."""
+    found = sorted(where.glob(f"{stem}*.npz")) if program is None else []
+    return found[-1] if found else where / f"{stem}-{program_tag(program) if program else 'none'}.npz"
+
+
+def sector_of(dx: float, dy: float, sectors: int) -> int:
+    """The bearing sector of a horizontal offset (east, north): sector k is centred on the azimuth 360 k / N
+    degrees counter-clockwise from east (k = 0: east, N = 8: k = 2 is north)."""
+    return round(math.atan2(dy, dx) / (2 * math.pi / sectors)) % sectors
+
+
+def range_dependent(params: Any, ctx: ModelContext, floor: Any, max_range: float, r_step: float,
+                    spec: Any) -> tuple[int, list[tuple[float, float]], list[GridSpec]]:
+    """The grids of a sloping or gridded bottom: per source cell (the sender's known positions, its start and
+    waypoints, on a `positionStep` m lattice) and bearing sector (`sectors` around it), the bottom along the
+    sector's centre line from the cell's centre every rangeStep to past maxRange (a .bty), depths held >= 1 m.
+    A cell's grids share their axes (the .env's depth is the deepest point of all its sectors), so that one
+    gather answers a frame's receivers in every sector."""
+    sectors = int(params.get("sectors", "8"))
+    step = float(params.get("positionStep", "250"))
+    if not (sectors >= 1 and step > 0):
+        raise ValueError("sectors must be >= 1 and positionStep > 0")
+    known = getattr(ctx, "positions", ()) or ((0.0, 0.0, 0.0),)
+    cells = sorted({(round(p[0] / step) * step, round(p[1] / step) * step) for p in known})
+    specs = []
+    for cx, cy in cells:
+        lines = []
+        for k in range(sectors):
+            phi = 2 * math.pi * k / sectors
+            lines.append([(round(float(r), 6), round(max(1.0, float(floor.depth(cx + r * math.cos(phi),
+                                                                                 cy + r * math.sin(phi)))), 6))
+                          for r in np.arange(0.0, max_range + 2.5 * r_step, r_step)])   # as the .bty has them
+        deepest = max(z for line in lines for _, z in line)     # one depth axis for the cell's sectors
+        specs += [spec(deepest, line[0][1], line, f" bearing {360 * k / sectors:g} deg from ({cx:g}, {cy:g})")
+                  for k, line in enumerate(lines)]
+    return sectors, cells, specs
 
 
 @lru_cache(maxsize=16)
@@ -552,8 +378,9 @@ MANY = 24
 
 
 def _trilinear_stack(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarray, q0: np.ndarray,
-                     q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """`_trilinear` of every last-axis column of v at once: (n, v.shape[-1])."""
+                     q1: np.ndarray, q2: np.ndarray, lead: np.ndarray | None = None) -> np.ndarray:
+    """`_trilinear` of every last-axis column of v at once: (n, v.shape[-1]); `lead`: each query's index on
+    v's first axis (a stack of grids on the same axes)."""
     (i, f), (j, g), (k, h) = _axis(a0, q0), _axis(a1, q1), _axis(a2, q2)
     i1 = np.minimum(i + 1, len(a0) - 1)
     j1 = np.minimum(j + 1, len(a1) - 1)
@@ -562,7 +389,7 @@ def _trilinear_stack(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarr
     for ii, wi in ((i, 1 - f), (i1, f)):
         for jj, wj in ((j, 1 - g), (j1, g)):
             for kk, wk in ((k, 1 - h), (k1, h)):
-                out += (wi * wj * wk)[:, None] * v[ii, jj, kk]
+                out += (wi * wj * wk)[:, None] * (v[ii, jj, kk] if lead is None else v[lead, ii, jj, kk])
     return out
 
 

@@ -107,11 +107,14 @@ class ModelContext:
     the one it would use without a `<channelModel>`), which a model may wrap."""
 
     def __init__(self, device: Any, channel: Any, seed: int, builtins: Mapping[str, Callable[[], ChannelModel]],
-                 default: str, environment: Any = None) -> None:
+                 default: str, environment: Any = None, positions: Sequence[Sequence[float]] = ()) -> None:
         self.device = device
         self.channel = channel
         self.environment = environment
         """The scene's `<environment>` (scene.model.Environment: origin, sound speed, bathymetry), or None."""
+        self.positions = tuple(tuple(float(v) for v in p) for p in positions)
+        """Where the scene puts the device's vehicle (x, y, z): its position, or its trajectory's waypoints; empty
+        when unknown (a model that needs the sender's place before a run, as bellhop over a slope, reads it)."""
         self.seed = seed
         self.default = default
         self._builtins = builtins

@@ -12,8 +12,8 @@ import math
 from bisect import bisect_right
 from collections.abc import Sequence
 
-__all__ = ["PRESETS", "WGS84_A", "WGS84_F", "Bathymetry", "SoundSpeedProfile", "doppler_factor", "geodetic_to_enu",
-           "intercept_delay", "munk_profile"]
+__all__ = ["GSW_HOWTO", "PRESETS", "WGS84_A", "WGS84_F", "Bathymetry", "SoundSpeedProfile", "doppler_factor",
+           "geodetic_to_enu", "intercept_delay", "munk_profile", "teos10_speeds"]
 
 WGS84_A = 6_378_137.0
 """WGS-84 semi-major axis, m (NIMA TR8350.2)."""
@@ -91,6 +91,33 @@ class SoundSpeedProfile:
     def from_ts(cls, points: Sequence[tuple[float, float, float]], name: str = "mackenzie") -> SoundSpeedProfile:
         """From (depth m, temperature degC, salinity ppt) points through Mackenzie (1981)."""
         return cls([(d, _mackenzie(t, s, d)) for d, t, s in points], name)
+
+
+GSW_HOWTO = ("TEOS-10 needs the gsw package (the Gibbs SeaWater toolbox): pip install 'uwsimnet-zenoh[teos10]'"
+             " (or pip install gsw)")
+
+
+def teos10_speeds(points: Sequence[tuple[float, float, float]], origin: tuple[float, float] | None
+                  ) -> list[tuple[float, float]]:
+    """(depth m, speed m/s) from (depth m, in-situ temperature degC ITS-90, Practical Salinity) points through
+    TEOS-10 (IOC, SCOR & IAPSO 2010) with the `gsw` package: sea pressure from depth at the origin's latitude
+    (gsw.p_from_z), Absolute Salinity from Practical Salinity with the atlas' anomaly at the origin
+    (gsw.SA_from_SP), then the sound speed from the Gibbs function itself (gsw.sound_speed_t_exact: in-situ
+    temperature, no fitted polynomial).  Without an origin: latitude 45 deg and Reference Salinity
+    (gsw.SR_from_SP, the anomaly left out: at most a few hundredths of a g/kg, a few cm/s).
+    ValueError(GSW_HOWTO) when gsw is not installed."""
+    try:
+        import gsw  # noqa: PLC0415 - optional extra, only for scenes that ask for TEOS-10
+    except ImportError:
+        raise ValueError(GSW_HOWTO) from None
+    ds = [float(d) for d, _, _ in points]
+    ts = [float(t) for _, t, _ in points]
+    sp = [float(s) for _, _, s in points]
+    lat, lon = origin if origin is not None else (45.0, 0.0)
+    p = gsw.p_from_z([-d for d in ds], lat)
+    sa = gsw.SA_from_SP(sp, p, lon, lat) if origin is not None else gsw.SR_from_SP(sp)
+    cs = gsw.sound_speed_t_exact(sa, ts, p)
+    return [(d, float(c)) for d, c in zip(ds, cs, strict=True)]
 
 
 def _mackenzie(t: float, s: float, d: float) -> float:

@@ -6,11 +6,25 @@ from __future__ import annotations
 import math
 import os
 import re
+from typing import TYPE_CHECKING
 
 from .model import Environment
 from .xml import XmlReader, _El, _Fields
 
+if TYPE_CHECKING:
+    from ..phy.ocean import SoundSpeedProfile
+
 _PAIRS = re.compile(r"[;,\n]")
+
+
+def _held(table: list[tuple[float, float]], x: float) -> float:
+    """A (x, value) table at x: linear between its points, held beyond its ends."""
+    if x <= table[0][0]:
+        return table[0][1]
+    for (x0, v0), (x1, v1) in zip(table, table[1:], strict=False):
+        if x <= x1:
+            return v0 + (x - x0) / (x1 - x0) * (v1 - v0)
+    return table[-1][1]
 
 
 class EnvironmentVocabulary(XmlReader):
@@ -21,8 +35,8 @@ class EnvironmentVocabulary(XmlReader):
     def environment(self, el: _El) -> Environment:
         from ..phy.ocean import PRESETS, Bathymetry, SoundSpeedProfile
 
-        k = self.kids(el, single=("origin", "preset", "profile", "temperature", "salinity", "bathymetry",
-                                  "seabed"))
+        k = self.kids(el, single=("origin", "preset", "profile", "temperature", "salinity", "equation",
+                                  "bathymetry", "seabed"))
         f = _Fields()
         if (e := k.get("origin")) is not None:
             lat, lon = self._numbers(e, 2, "origin", "'latitude longitude' (degrees)")
@@ -34,8 +48,9 @@ class EnvironmentVocabulary(XmlReader):
         given = [t for t in ("preset", "profile", "temperature") if k.get(t) is not None]
         if len(given) > 1:
             self.fail(k.get(given[1]), f"{given[1]}: give one of <preset>, <profile> or <temperature>")
-        if (e := k.get("salinity")) is not None and k.get("temperature") is None:
-            self.fail(e, "salinity: needs <temperature> (the profile through Mackenzie 1981)")
+        for tag in ("salinity", "equation"):
+            if (e := k.get(tag)) is not None and k.get("temperature") is None:
+                self.fail(e, f"{tag}: needs <temperature> (the profile from temperature and salinity)")
         try:
             if (e := k.get("preset")) is not None:
                 name = self.choice(e, tuple(PRESETS))
@@ -43,15 +58,7 @@ class EnvironmentVocabulary(XmlReader):
             elif (e := k.get("profile")) is not None:
                 prof = SoundSpeedProfile(self._table(e, "profile", "'depth speed' pairs (m, m/s)"), "table")
             elif (e := k.get("temperature")) is not None:
-                temps = self._table(e, "temperature", "'depth temperature' pairs (m, degC)")
-                sal = 35.0
-                if (s_el := k.get("salinity")) is not None:
-                    sal = self.number(s_el)[0]
-                    if not 0 <= sal <= 45:
-                        self.fail(s_el, f"salinity: expected 0-45 ppt, got {sal:g}")
-                if any(not -2 <= t <= 40 for _, t in temps):
-                    self.fail(e, "temperature: expected -2 to 40 degC (Mackenzie's domain is -2 to 30)")
-                prof = SoundSpeedProfile.from_ts([(d, t, sal) for d, t in temps])
+                prof = self._from_ts(e, k.get("salinity"), k.get("equation"), SoundSpeedProfile)
             else:
                 prof = PRESETS["isovelocity"][1]
         except ValueError as err:
@@ -68,6 +75,32 @@ class EnvironmentVocabulary(XmlReader):
                     v, raw = self.number(x, f"seabed/{tag}")
                     f.set(field, v, f"seabed/{tag}", x, raw)
         return self.build(Environment, el, f)
+
+    def _from_ts(self, e: _El, s_el: _El | None, eq_el: _El | None, profile: type) -> SoundSpeedProfile:
+        """The profile from <temperature> and <salinity> (one value, or 'depth salinity' pairs taken at the
+        temperature's depths, linear between and held beyond) through <equation>: Mackenzie (1981) or TEOS-10."""
+        from ..phy.ocean import teos10_speeds
+
+        temps = self._table(e, "temperature", "'depth temperature' pairs (m, degC)")
+        if any(not -2 <= t <= 40 for _, t in temps):
+            self.fail(e, "temperature: expected -2 to 40 degC (Mackenzie's domain is -2 to 30)")
+        sal = [(0.0, 35.0)]
+        if s_el is not None:
+            one = self.text(s_el).split()
+            sal = [(0.0, self.number(s_el)[0])] if len(one) == 1 else self._table(
+                s_el, "salinity", "one salinity or 'depth salinity' pairs (m, practical salinity)")
+            if any(b[0] <= a[0] for a, b in zip(sal, sal[1:], strict=False)):
+                self.fail(s_el, "salinity: depths must increase")
+            if (bad := [v for _, v in sal if not 0 <= v <= 45]):
+                self.fail(s_el, f"salinity: expected 0-45 (practical salinity, ~ppt), got {bad[0]:g}")
+        equation = self.choice(eq_el, ("mackenzie", "teos10")) if eq_el is not None else "mackenzie"
+        pts = [(d, t, _held(sal, d)) for d, t in temps]
+        if equation == "mackenzie":
+            return profile.from_ts(pts)
+        try:
+            return profile(teos10_speeds(pts, self.origin), "teos10")
+        except ValueError as err:
+            self.fail(eq_el, f"equation: {err}")
 
     def _bathymetry(self, e: _El, f: _Fields, bathymetry: type) -> None:
         words = self.text(e).split()
