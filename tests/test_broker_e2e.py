@@ -302,6 +302,16 @@ def test_a_pose_from_a_third_process_changes_delay_and_loss(shared, procs):
     assert rx.call(cmd="info", id="bravo-m")["counters"]["rx"] == 9
 
 
+def test_gli_pose_of_a_vehicle_the_world_does_not_have_is_one_line_and_exit_2(shared):
+    gli = [PY, "-m", "uwsimnet_gli.cli", "--connect", shared.endpoint, "--world", WORLD, "pose"]
+    r = subprocess.run([*gli, "bravoo", "1", "2", "3"], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert r.returncode == 2, r
+    assert r.stderr.strip() == ("gli: pose: no vehicle 'bravoo' in world 'e2e' (vehicles: alpha, bravo, charlie,"
+                                " delta, echo)"), r.stderr
+    ok = subprocess.run([*gli, "bravo", "1", "2", "3"], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert ok.returncode == 0 and "Putting pose (1.0, 2.0, 3.0)" in ok.stdout, ok
+
+
 def test_malformed_messages_leave_the_broker_serving(shared, procs):
     app, probe = App(shared.endpoint), App(shared.endpoint)
     procs.extend([app, probe])
