@@ -7,6 +7,7 @@ being free).  Commands ending in `&` run in the background, as in a shell."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -106,7 +107,7 @@ def workdir(tmp: Path) -> Path:
 def test_readme_commands_block(tmp_path):
     cmds = commands(section("Commands"))
     assert [argv[1] for argv, _ in cmds][:4] == ["validate", "run", "report", "plot"]
-    cmds = cmds[:4]                 # (then `uwsimnet sweep`: a 20-run campaign, tested in its own file)
+    cmds = cmds[:4]                 # (then `uwsimnet sweep`: test_readme_sweep_compares_macs_at_rates_they_carry)
     outs = []
     cwd = workdir(tmp_path)
     for argv, bg in cmds:
@@ -121,6 +122,26 @@ def test_readme_commands_block(tmp_path):
     figs = [ln for ln in outs[3].splitlines() if ln.endswith(".png")]
     assert figs and all((cwd / f).is_file() for f in figs)
     assert (cwd / "out" / "rf.jsonl").is_file()
+
+
+def test_readme_sweep_compares_macs_at_rates_they_carry(tmp_path):
+    """The README's campaign, as written: each MAC at rates it carries (at least 95 % of what the RF flows
+    offer arrives, next to nothing is left in or refused by the FIFO), delay drawn on a log axis."""
+    (argv, bg), = [c for c in commands(section("Commands")) if c[0][1] == "sweep"]
+    cwd = workdir(tmp_path)
+    r = run(argv, timeout=600, cwd=cwd)
+    assert r.returncode == 0 and not bg and "Traceback" not in r.stderr, r.stderr
+    assert "### frames left in the FIFO at the end" in r.stdout and "### frames dropped at a full FIFO" in r.stdout
+    summary = json.loads((cwd / "out" / "sweep" / "summary.json").read_text())
+    assert sorted(summary) == ["twinbot-aloha", "twinbot-sfama"]
+    for mac, s in summary.items():
+        assert {m["n"] for m in s.values() if m is not None} == {5}, mac
+        for flow in ("leader", "follower"):
+            enq = s[f"flow.{flow}.enqueued"]["mean"]
+            assert s[f"flow.{flow}.throughput"]["mean"] >= 0.95 * s[f"flow.{flow}.offered"]["mean"], (mac, flow)
+            assert s[f"flow.{flow}.fifo_drops"]["mean"] == 0, (mac, flow)
+            assert s[f"flow.{flow}.left_in_fifo"]["mean"] <= 0.02 * enq, (mac, flow)
+    assert "log axis" in section("Commands") and (cwd / "out" / "sweep" / "figures" / "delay_mean.png").is_file()
 
 
 def test_readme_real_time_block_in_order_on_fresh_ports(tmp_path):

@@ -34,8 +34,18 @@ from .overrides import apply
 from .virtual import load_scene_file
 
 FLOW_METRICS = ("throughput", "offered", "efficiency", "delivery_ratio", "delay_mean", "delay_median", "delay_p95",
-                "jitter", "enqueued", "sent", "delivered")
+                "jitter", "enqueued", "sent", "delivered", "fifo_drops", "left_in_fifo")
 """Per-flow numbers a result row carries (`flow.<name>.<metric>`)."""
+
+
+def _queue_metrics(m: dict[str, Any]) -> dict[str, Any]:
+    """`fifo_drops` (frames refused by a full FIFO) and `left_in_fifo` (frames enqueued that by the end were
+    neither on air nor dropped: still waiting at the modem).  The delivery ratio counts only frames that went
+    on air, so a MAC that cannot carry its load shows 1.0 there and its backlog only here."""
+    drops = m.get("drops") or {}
+    fifo = int(drops.get("fifo", 0))
+    left = m["enqueued"] - m["unique_sent"] - fifo - int(drops.get("stopped", 0))
+    return {**m, "fifo_drops": fifo, "left_in_fifo": max(0, left)}
 
 
 @lru_cache(maxsize=1)
@@ -82,9 +92,11 @@ class RunResult:
     trace: list[dict[str, Any]] | None = field(default=None, repr=False)
 
     def row(self) -> dict[str, Any]:
-        """One flat row: `flow.<name>.<metric>` and `channel.<id>.<metric>` columns."""
+        """One flat row: `flow.<name>.<metric>` (`uwsimnet report`'s, and the FIFO's two) and
+        `channel.<id>.<metric>` columns."""
         out: dict[str, Any] = {"events": self.events, "conservation_violations": self.conservation_violations}
         for name, m in sorted(self.flows.items()):
+            m = _queue_metrics(m)
             for k in FLOW_METRICS:
                 out[f"flow.{name}.{k}"] = m.get(k)
         for ch, m in sorted(self.channels.items()):
