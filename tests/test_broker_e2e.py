@@ -95,8 +95,15 @@ class Proc:
         self.lines: queue.Queue[str | None] = queue.Queue()
         self.out: list[str] = []
         self.err: list[str] = []
-        threading.Thread(target=self._read, args=(self.p.stdout, True), daemon=True).start()
-        threading.Thread(target=self._read, args=(self.p.stderr, False), daemon=True).start()
+        self.readers = [threading.Thread(target=self._read, args=(fh, fh is self.p.stdout), daemon=True)
+                        for fh in (self.p.stdout, self.p.stderr)]
+        for t in self.readers:
+            t.start()
+
+    def drained(self, timeout: float = 10.0) -> None:
+        """Wait until the reader threads have read everything the exited process wrote (both pipes at EOF)."""
+        for t in self.readers:
+            t.join(timeout)
 
     def _read(self, fh, is_out: bool) -> None:
         for line in fh:
@@ -137,7 +144,7 @@ class Proc:
                 self.p.kill()
                 self.p.wait(5)
                 raise AssertionError(f"did not stop within {timeout} s after signal {sig}\n{self.output()}") from None
-        time.sleep(0.05)        # let the reader threads drain
+        self.drained()
         return self.p.returncode
 
 

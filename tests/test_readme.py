@@ -60,8 +60,15 @@ class Bg:
                                   env=dict(os.environ, PYTHONUNBUFFERED="1"))
         self.out: list[str] = []
         self.err: list[str] = []
-        for fh, dst in ((self.p.stdout, self.out), (self.p.stderr, self.err)):
-            threading.Thread(target=lambda fh=fh, dst=dst: dst.extend(iter(fh.readline, "")), daemon=True).start()
+        self.readers = [threading.Thread(target=lambda fh=fh, dst=dst: dst.extend(iter(fh.readline, "")), daemon=True)
+                        for fh, dst in ((self.p.stdout, self.out), (self.p.stderr, self.err))]
+        for t in self.readers:
+            t.start()
+
+    def drained(self, timeout: float = 10.0) -> None:
+        """Wait until the reader threads have read everything the exited process wrote."""
+        for t in self.readers:
+            t.join(timeout)
 
     def text(self) -> str:
         return "".join(self.out) + "\n--- stderr ---\n" + "".join(self.err)
@@ -73,7 +80,7 @@ class Bg:
             if m:
                 return m.group(0)
             if self.p.poll() is not None:
-                time.sleep(0.2)
+                self.drained()                          # exited: everything it wrote, then one last look
                 if re.search(pattern, "".join(self.out if stream == "out" else self.err), re.M):
                     continue
                 break
@@ -88,7 +95,7 @@ class Bg:
             except subprocess.TimeoutExpired:
                 self.p.kill()
                 self.p.wait(5)
-        time.sleep(0.1)
+        self.drained()
         return self.p.returncode
 
 
@@ -173,12 +180,20 @@ def test_readme_real_time_block_in_order_on_fresh_ports(tmp_path):
         assert p.returncode == 0 and p.stdout.startswith("Putting pose (100.0, 0.0, -10.0)"), p.stdout + p.stderr
         li = Bg(gli(listen))                                               # 4. in the background
         li.wait_for(r"^Press CTRL-C to quit", 30, stream="err")
-        time.sleep(0.5)                                                    # subscribed at the router
-        sd = run(gli(send), timeout=60)                                    # 5. from the shell
-        assert sd.returncode == 0, sd.stdout + sd.stderr
-        assert re.search(r"^Sending to 2 \(tag \d+, 5 B\): 'hello'$", sd.stdout, re.M), sd.stdout
-        assert re.search(r"^  sent at t=\d+\.\d{6}$", sd.stdout, re.M), sd.stdout
-        li.p.wait(30)                                                      # --count 1: it ends by itself
+        # 5. from the shell; a frame put before the listener's subscription reached the router is routed to
+        # nobody, so the send is repeated (each as written) until the listener has one (--count 1: it exits)
+        deadline = time.monotonic() + 60
+        while True:
+            sd = run(gli(send), timeout=60)
+            assert sd.returncode == 0, sd.stdout + sd.stderr
+            assert re.search(r"^Sending to 2 \(tag \d+, 5 B\): 'hello'$", sd.stdout, re.M), sd.stdout
+            assert re.search(r"^  sent at t=\d+\.\d{6}$", sd.stdout, re.M), sd.stdout
+            try:
+                li.p.wait(5)                                               # the frame's time on air, amply
+                break
+            except subprocess.TimeoutExpired:
+                assert time.monotonic() < deadline, li.text()
+        li.drained()
         assert li.p.returncode == 0, li.text()
         assert re.search(r"^>> \[rx\] bravo-modem <- 1 \(dst 2, seq \d+\) t_tx=\S+ t_rx=\S+: 'hello'$",
                          "".join(li.out), re.M), li.text()
