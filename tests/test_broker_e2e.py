@@ -319,6 +319,17 @@ def test_gli_pose_of_a_vehicle_the_world_does_not_have_is_one_line_and_exit_2(sh
     assert ok.returncode == 0 and "Putting pose (1.0, 2.0, 3.0)" in ok.stdout, ok
 
 
+def test_gli_pose_where_no_broker_answers_says_it_is_unchecked(procs):
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    router = Proc([*UWSIMNET, "router", "--listen", ep])
+    procs.append(router)
+    router.expect("zenoh router", 20)
+    r = subprocess.run([PY, "-m", "uwsimnet_gli.cli", "-e", ep, "-w", "nobody", "pose", "v", "1", "2", "3"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert r.returncode == 0 and "Putting pose (1.0, 2.0, 3.0)" in r.stdout, r
+    assert "gli: no broker of world 'nobody' answers control/state; 'v' is not checked" in r.stderr, r.stderr
+
+
 def test_malformed_messages_leave_the_broker_serving(shared, procs):
     app, probe = App(shared.endpoint), App(shared.endpoint)
     procs.extend([app, probe])

@@ -133,6 +133,9 @@ def test_keep_traces_on_a_finished_campaign_runs_only_what_has_no_trace(tmp_path
     assert not list((c.out / "rows").glob("*.jsonl.gz"))
     c.keep_traces = True
     (c.out / "rows" / next(iter(sorted((c.out / "rows").glob("*.json")))).name).unlink()
+    dry = subprocess.run([*UWSIMNET, "sweep", str(TWO_NODES), "--seeds", "1-3", "--duration", "5", "--out", str(c.out),
+                          "--dry-run", "--keep-traces"], capture_output=True, text=True, timeout=120)
+    assert dry.returncode == 0 and [ln.split()[1] for ln in dry.stdout.splitlines()] == ["todo"] * 3, dry
     rep = cp.execute(c)
     assert (rep["ran"], rep["reused"]) == (3, 0) and len(list((c.out / "rows").glob("*.jsonl.gz"))) == 3
     assert (cp.execute(c)["ran"]) == 0
