@@ -202,6 +202,8 @@ def _check_vehicle(world: World, vehicle: str) -> None:
     published to nobody, so a typo would otherwise pass in silence.  Unchecked (a note on stderr) when no
     broker answers `control/state` (not started yet, or this identity may not ask)."""
     if world.access is not None and access_refusals(world.access, "control", world.name):
+        print(f"gli: this identity may not ask world {world.name!r} for its vehicles (control/state);"
+              f" {vehicle!r} is not checked", file=sys.stderr)
         return                                  # the routers would drop the query: no answer to wait for
     replies = [r for r in world.control_all("state") if r.get("ok")]
     if not replies:
