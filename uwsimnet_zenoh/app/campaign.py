@@ -18,9 +18,11 @@ data.
 from __future__ import annotations
 
 import gzip
+import io
 import itertools
 import json
 import os
+import shutil
 import sys
 import tempfile
 import tomllib
@@ -147,7 +149,7 @@ def run_one(spec: Mapping[str, Any]) -> dict[str, Any]:
             r = run(spec["scene"], seed=spec["seed"], duration=spec["duration"], overrides=spec["overrides"],
                     trace_path=path)
             if path is not None:
-                row[TRACE] = gzip.compress(path.read_bytes(), mtime=0)
+                row[TRACE] = _gzipped(path)
     except Exception as e:  # noqa: BLE001 - recorded, the campaign goes on
         last = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
         where = f" ({Path(last.filename).name}:{last.lineno})" if last else ""
@@ -156,6 +158,15 @@ def run_one(spec: Mapping[str, Any]) -> dict[str, Any]:
     row.update(status="ok", error=None, duration=r.duration)
     row.update(r.row())
     return row
+
+
+def _gzipped(path: Path) -> bytes:
+    """The file gzip-compressed without a time stamp or a name (the same bytes wherever it is made), streamed
+    so that only the compressed trace is held in memory."""
+    buf = io.BytesIO()
+    with open(path, "rb") as src, gzip.GzipFile(fileobj=buf, mode="wb", mtime=0) as gz:
+        shutil.copyfileobj(src, gz, 1 << 20)
+    return buf.getvalue()
 
 
 TRACE = "_trace"
