@@ -95,8 +95,15 @@ class Proc:
         self.lines: queue.Queue[str | None] = queue.Queue()
         self.out: list[str] = []
         self.err: list[str] = []
-        threading.Thread(target=self._read, args=(self.p.stdout, True), daemon=True).start()
-        threading.Thread(target=self._read, args=(self.p.stderr, False), daemon=True).start()
+        self.readers = [threading.Thread(target=self._read, args=(fh, fh is self.p.stdout), daemon=True)
+                        for fh in (self.p.stdout, self.p.stderr)]
+        for t in self.readers:
+            t.start()
+
+    def drained(self, timeout: float = 10.0) -> None:
+        """Wait until the reader threads have read everything the exited process wrote (both pipes at EOF)."""
+        for t in self.readers:
+            t.join(timeout)
 
     def _read(self, fh, is_out: bool) -> None:
         for line in fh:
@@ -137,7 +144,7 @@ class Proc:
                 self.p.kill()
                 self.p.wait(5)
                 raise AssertionError(f"did not stop within {timeout} s after signal {sig}\n{self.output()}") from None
-        time.sleep(0.05)        # let the reader threads drain
+        self.drained()
         return self.p.returncode
 
 
@@ -300,6 +307,27 @@ def test_a_pose_from_a_third_process_changes_delay_and_loss(shared, procs):
     back = delays_at(100.0)                                    # and back in range
     assert len(back) == 3
     assert rx.call(cmd="info", id="bravo-m")["counters"]["rx"] == 9
+
+
+def test_gli_pose_of_a_vehicle_the_world_does_not_have_is_one_line_and_exit_2(shared):
+    gli = [PY, "-m", "uwsimnet_gli.cli", "--connect", shared.endpoint, "--world", WORLD, "pose"]
+    r = subprocess.run([*gli, "bravoo", "1", "2", "3"], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert r.returncode == 2, r
+    assert r.stderr.strip() == ("gli: pose: no vehicle 'bravoo' in world 'e2e' (vehicles: alpha, bravo, charlie,"
+                                " delta, echo)"), r.stderr
+    ok = subprocess.run([*gli, "bravo", "1", "2", "3"], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert ok.returncode == 0 and "Putting pose (1.0, 2.0, 3.0)" in ok.stdout, ok
+
+
+def test_gli_pose_where_no_broker_answers_says_it_is_unchecked(procs):
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    router = Proc([*UWSIMNET, "router", "--listen", ep])
+    procs.append(router)
+    router.expect("zenoh router", 20)
+    r = subprocess.run([PY, "-m", "uwsimnet_gli.cli", "-e", ep, "-w", "nobody", "pose", "v", "1", "2", "3"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert r.returncode == 0 and "Putting pose (1.0, 2.0, 3.0)" in r.stdout, r
+    assert "gli: no broker of world 'nobody' answers control/state; 'v' is not checked" in r.stderr, r.stderr
 
 
 def test_malformed_messages_leave_the_broker_serving(shared, procs):

@@ -298,3 +298,21 @@ def test_an_override_never_imports_a_module(tmp_path):
                        env={**os.environ, "PYTHONPATH": str(tmp_path)})
     assert r.returncode == 2 and "module:Class" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not (tmp_path / "sideeffect_probe.py.imported").exists()
+
+
+def test_a_mac_that_cannot_carry_its_load_shows_its_fifo(tmp_path):
+    """S-FAMA at CS-ALOHA's TWINBOT rates (RF 62.5 B/s per flow, above S-FAMA's 34 B/s maximum,
+    docs/paper-twinbot.md): every frame that went on air arrives (delivery ratio 1), so only the FIFO
+    columns show the load it cannot carry; both are counted again here from the run's own trace."""
+    r = uw.run(ROOT / "scenes/paper/twinbot-aloha.xml", seed=1, duration=200, overrides={"device.*.mac": "sfama"},
+               trace=True)
+    for name in ("leader", "follower"):
+        recs = [x for x in r.trace if x.get("flow") == name and x.get("kind") == "data"]
+        enq = {x["seq"] for x in recs if x["ev"] == "enq"}
+        on_air = {x["seq"] for x in recs if x["ev"] == "tx"}
+        refused = {x["seq"] for x in recs if x["ev"] == "drop" and x["reason"] == "fifo"}
+        m = {k.split(".")[-1]: v for k, v in r.row().items() if k.startswith(f"flow.{name}.")}
+        assert (m["fifo_drops"], m["left_in_fifo"]) == (len(refused), len(enq - on_air - refused))
+        assert m["delivery_ratio"] >= 0.99 and m["fifo_drops"] + m["left_in_fifo"] > 0.3 * m["enqueued"], m
+    carried = uw.run(ROOT / "scenes/paper/twinbot-sfama.xml", seed=1, duration=200).row()
+    assert carried["flow.leader.fifo_drops"] == 0 and carried["flow.leader.left_in_fifo"] <= 2

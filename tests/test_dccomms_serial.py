@@ -214,8 +214,7 @@ def test_serial_round_trip_through_ptys(radios, tmp_path):
     db.send(1, b"pong")
     db.send(255, b"to all")
     db.send(7, b"not for a")                                # a's driver filters it out
-    assert until(lambda: len(rx_a) == 2)
-    time.sleep(0.1)
+    assert until(lambda: len(rx_a) == 2 and da.counters["rx_not_for_us"] == 1)    # all three decoded
     assert [(f.src, f.dst, f.data) for f in rx_a] == [(2, 1, b"pong"), (2, 255, b"to all")]
     # without a MAC the simulated modem a hands up all three (implicit broadcast); a's driver filters
     assert emus["a"].counters["rx"] == 3 and emus["b"].counters["tx"] == 3
@@ -238,8 +237,7 @@ def test_malformed_device_output_is_reported_and_survived(tmp_path):
         os.write(master, encode_frame(1, 5, b"cut short")[:8])           # then nothing for a while
         assert until(lambda: any("truncated" in e.detail for e in evs))      # after stall_timeout
         os.write(master, encode_frame(1, 5, b"fine") + encode_frame(3, 5, b"for 3"))
-        assert until(lambda: rx)
-        time.sleep(0.05)
+        assert until(lambda: rx and d.counters["rx_not_for_us"] == 1)       # "for 3" decoded and filtered
         assert [(f.src, f.dst, f.data) for f in rx] == [(5, 1, b"fine")]
         details = " | ".join(e.detail for e in evs if e.kind == "protocol-error")
         assert "garbage" in details and "bad CRC" in details and "bad length" in details and "truncated" in details

@@ -470,19 +470,20 @@ def session(name):
 with session("app-a") as a, session("vis") as v, session("app-b") as b:
     sub = b.declare_subscriber("uwsimnet/lab/modem/b/status", cb)
     tag = lambda s: wire.decode_status(s[1]).tag
-    time.sleep(1.0)
+    def control(t):
+        for _ in range(40):
+            b.put("uwsimnet/lab/modem/b/tx", wire.encode_tx(1, b"control", t))
+            if wait(lambda s: tag(s) == t, 0.5):
+                return True
+        return False
+    ready = control(100)            # b's status subscription is in place: a forged frame's status would come
     # forged: app-a on modem b, the visitor on modem b; then app-b's own tx (allowed) on the same path
     a.put("uwsimnet/lab/modem/b/tx", wire.encode_tx(1, b"forged", 101))
     v.put("uwsimnet/lab/modem/b/tx", wire.encode_tx(1, b"forged", 102))
     v.put("uwsimnet/lab/pose/vb", wire.encode_pose([99, 99, 99]))
     a.put("uwsimnet/lab/pose/vb", wire.encode_pose([98, 98, 98]))
-    time.sleep(0.5)
-    ok = False
-    for _ in range(40):
-        b.put("uwsimnet/lab/modem/b/tx", wire.encode_tx(1, b"control", 103))
-        if wait(lambda s: tag(s) == 103, 0.5):
-            ok = True
-            break
+    time.sleep(0.5)                 # (a forged frame that got through would be answered within this)
+    ok = ready and control(103)
     time.sleep(0.5)
     print(json.dumps({"control": ok, "forged": sorted({tag(s) for s in got} & {101, 102})}))
 """

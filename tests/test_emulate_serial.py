@@ -111,7 +111,7 @@ def test_emulate_serial_frames_both_ways_bad_crc_and_sigterm(broker, tmp_path: P
         emu.p.send_signal(signal.SIGTERM)
         assert emu.p.wait(5) == 0, emu.output()
         assert time.monotonic() - t0 < 5
-        time.sleep(0.05)                                            # let the reader threads drain
+        emu.drained()                                               # every line it wrote is read
         assert "Traceback" not in emu.output(), emu.output()
         assert not os.path.lexists(link)                            # the symlink goes with the emulator
     finally:

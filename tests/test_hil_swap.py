@@ -185,7 +185,8 @@ def test_swap_in_out_and_kill9(broker):
             th = threading.Thread(target=traffic, daemon=True)
             th.start()
             try:
-                time.sleep(0.3)
+                wait_for(lambda: any(m is b and final(b, t) for m, t in list(sent)), 10,
+                         "traffic answered by the simulated b-m")
                 drv2 = Driver(broker.endpoint, "b-m")
                 drivers.append(drv2)
                 assert b.wait_kind(("real",), timeout=5) == "real"
@@ -193,7 +194,8 @@ def test_swap_in_out_and_kill9(broker):
                 drv2.kill9()
                 assert b.wait_kind(("sim",), timeout=5) == "sim"
                 wait_for(lambda: sim_token(w, "b-m"), 5, "the sim token back")
-                time.sleep(0.3)
+                n_back = len(sent)
+                wait_for(lambda: len(sent) >= n_back + 6, 10, "traffic going on after the swap back")
             finally:
                 stop.set()
                 th.join(5)

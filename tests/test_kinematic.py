@@ -86,7 +86,8 @@ def test_vehicles_command_moves_a_broker_vehicle(tmp_path: Path):
             assert pos() == pytest.approx((12, 0, 0), abs=0.05)
             # the modem moved with it: propagation delay of a frame follows the new distance
             base, k = w.modem("base-m"), w.modem("k-m")
-            time.sleep(0.3)
+            # the driver token's answer comes back through the router after it took k's rx subscription
+            assert k.wait_kind(("sim",), timeout=10) == "sim" and base.wait_kind(("sim",), timeout=10) == "sim"
             base.send(2, b"ping")
             f = k.receive(timeout=5)
             assert f is not None

@@ -176,3 +176,10 @@ def test_pcap_of_something_that_is_not_a_trace_is_one_line_and_exit_2(tmp_path):
 def test_the_dissector_ships_with_the_package():
     r = subprocess.run([*UWSIMNET, "pcap", "--dissector"], capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0 and Path(r.stdout.strip()) == DISSECTOR and DISSECTOR.is_file()
+
+
+def test_pcap_help_says_what_the_trace_argument_is():
+    r = subprocess.run([*UWSIMNET, "pcap", "--help"], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0
+    line = next(ln for ln in r.stdout.splitlines() if ln.strip().startswith("TRACE"))
+    assert "uwsimnet run --trace" in r.stdout and len(line.split()) > 1, r.stdout

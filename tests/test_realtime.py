@@ -159,7 +159,7 @@ def test_until_ends_the_run_there(clock):
 def test_stop_wakes_an_idle_clock_at_once(clock):
     c = clock()
     c.start()
-    time.sleep(0.02)
+    _until_waiting(c)                           # idle: the engine thread waits for work
     t0 = time.perf_counter()
     c.stop()
     assert c.join(1.0)

@@ -164,7 +164,10 @@ def test_evologics_emulator_reports_the_channels_propagation_time(session, law):
     try:
         host, port = emu.start()
         with socket.create_connection((host, port), timeout=5) as sock, World(WORLD, session=session) as w:
-            time.sleep(0.1)                                           # the emulator has the client
+            deadline = time.monotonic() + 10
+            while not emu.clients:                                    # the emulator has the client
+                assert time.monotonic() < deadline, "the emulator never took the connection"
+                time.sleep(0.01)
             data = b"x" * 100                                         # > 64 bytes: arrives as RECV
             w.modem("a-m").send(2, data)
             buf = bytearray()

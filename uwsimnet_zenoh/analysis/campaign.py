@@ -3,9 +3,10 @@
     OUT/results.parquet   one row per run: key, scene, seed, version, status, error, param.<path>..., metrics
     OUT/results.csv       the same rows, for tools without Parquet
     OUT/summary.json      per parameter point and metric: n, mean, half-width of the 95 % t interval
-    OUT/summary.md        tables (flows x parameter points) of throughput, delay and efficiency, mean ± CI
-    OUT/figures/*.png     the same as bar charts with error bars; a line with error bars per flow when a
-                          single numeric parameter is swept
+    OUT/summary.md        tables (flows x parameter points) of throughput, delay, efficiency, delivery ratio,
+                          frames left in the FIFO and FIFO drops: mean ± CI
+    OUT/figures/*.png     the same as bar charts with error bars (delay on a log axis); a line with error bars
+                          per flow when a single numeric parameter is swept
 """
 
 from __future__ import annotations
@@ -22,7 +23,13 @@ from .intervals import Interval, mean_ci
 from .tables import markdown_table
 
 TABLES = (("throughput", "throughput (B/s)"), ("delay_mean", "mean end-to-end delay (s)"),
-          ("efficiency", "efficiency"), ("delivery_ratio", "delivery ratio"))
+          ("efficiency", "efficiency"), ("delivery_ratio", "delivery ratio (of the frames sent)"),
+          ("left_in_fifo", "frames left in the FIFO at the end"), ("fifo_drops", "frames dropped at a full FIFO"))
+"""summary.md's tables and the bar figures.  The FIFO's two show a MAC that cannot carry its load, which the
+delivery ratio (frames that went on air) does not."""
+LOG_AXIS = ("delay_mean",)
+"""Metrics drawn on a log axis: delays of MACs differ by orders of magnitude, and a linear axis flattens all
+but the largest."""
 
 
 def _point(row: dict[str, Any], params: Sequence[str], multi_scene: bool) -> str:
@@ -136,7 +143,10 @@ def _figures(summary: dict[str, dict[str, Any]], rows: list[dict[str, Any]], par
             xs = [j + (i - (len(points) - 1) / 2) * width for j in range(len(flows))]
             ax.bar(xs, means, width, yerr=errs, capsize=3, label=p)
         ax.set_xticks(range(len(flows)), flows, rotation=30, ha="right")
-        ax.set_ylabel(title)
+        if metric in LOG_AXIS and any(iv is not None and iv.mean > 0 for s in summary.values()
+                                      for k, iv in s.items() if k.endswith(f".{metric}")):
+            ax.set_yscale("log")
+        ax.set_ylabel(title + (", log scale" if ax.get_yscale() == "log" else ""))
         n = max((iv.n for s in summary.values() for iv in s.values() if iv is not None), default=0)
         ax.set_title(f"{title}: mean and 95 % interval over {n} seeds")
         ax.legend(fontsize="small")

@@ -4,19 +4,27 @@
                  out=Path("out/sweep"), workers=2)
     execute(c)                 # runs what is missing, then writes results.parquet, summary.md, figures
 
-Every run is keyed by (scene bytes, overrides, seed, version) (`api.run_key`); its row is written to
+Every run is keyed by (scene bytes, overrides, seed, version, duration) (`api.run_key`); its row is written to
 `OUT/rows/<key>.json` as soon as it finishes (atomically), so a campaign stopped by Ctrl-C or a crash resumes
-with only the missing runs.  A run that raises is recorded with its error (status `error`) and the others
-go on; runs are deterministic, so a failed run is not retried.  Where a run executes (1 process, N processes,
-a Dask cluster) never changes its row: rows hold no wall-clock data.
+with only the missing runs.  With `keep_traces` the run's trace goes beside it, `OUT/rows/<key>.jsonl.gz`:
+the worker returns it compressed (gzip without a time stamp, so the file is the same wherever it ran) and
+the driver writes it, as it writes the rows, so remote Dask workers need no shared folder.  Each run makes
+the scene's tracing class afresh (api.run), in whichever process runs it.  A run that raises is recorded
+with its error (status `error`) and the others go on; runs are deterministic, so a failed run is not retried.
+Where a run executes (1 process, N processes, a Dask cluster) never changes its row: rows hold no wall-clock
+data.
 """
 
 from __future__ import annotations
 
+import gzip
+import io
 import itertools
 import json
 import os
+import shutil
 import sys
+import tempfile
 import tomllib
 import traceback
 from collections.abc import Callable, Iterable, Mapping
@@ -26,6 +34,7 @@ from typing import Any
 
 from ..errors import UserError
 from .api import run, run_key, scene_digest, version
+from .checks import tracing_sink
 from .grids import precompute
 from .overrides import apply
 from .virtual import load_scene_file
@@ -66,6 +75,8 @@ class Campaign:
     workers: int = 1
     scheduler: str | None = None
     """None: local worker processes; "local": a Dask LocalCluster; anything else: a Dask scheduler address."""
+    keep_traces: bool = False
+    """Keep each run's trace as OUT/rows/<key>.jsonl.gz (a run with a row but no trace runs again)."""
 
 
 def load_campaign(path: str | os.PathLike[str]) -> Campaign:
@@ -77,7 +88,7 @@ def load_campaign(path: str | os.PathLike[str]) -> Campaign:
         raise UserError(f"{p}: cannot read campaign file: {e}") from None
     except tomllib.TOMLDecodeError as e:
         raise UserError(f"{p}: {e}") from None
-    known = {"scenes", "scene", "set", "seeds", "duration", "workers", "scheduler", "out"}
+    known = {"scenes", "scene", "set", "seeds", "duration", "workers", "scheduler", "out", "keep_traces"}
     bad = sorted(set(doc) - known)
     if bad:
         raise UserError(f"{p}: unknown key(s) {', '.join(bad)} (allowed: {', '.join(sorted(known))})")
@@ -94,15 +105,21 @@ def load_campaign(path: str | os.PathLike[str]) -> Campaign:
     seeds = parse_seeds(seeds) if isinstance(seeds, str) else seeds
     if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) for s in seeds):
         raise UserError(f"{p}: seeds must be a list of integers or a string like \"1-20\"")
+    keep = doc.get("keep_traces", False)
+    if not isinstance(keep, bool):
+        raise UserError(f"{p}: keep_traces must be true or false")
     return Campaign(scenes=[str((base / s) if not Path(s).is_absolute() else s) for s in scenes],
                     sets={k: list(v) for k, v in sets.items()}, seeds=seeds,
                     out=base / str(doc.get("out", "out/sweep")), duration=doc.get("duration"),
-                    workers=int(doc.get("workers", 1)), scheduler=doc.get("scheduler"))
+                    workers=int(doc.get("workers", 1)), scheduler=doc.get("scheduler"), keep_traces=keep)
 
 
 # -- the runs ----------------------------------------------------------------------------------------
 def specs(c: Campaign) -> list[dict[str, Any]]:
-    """Every run of the campaign, checked before anything runs: overrides applied to each scene once."""
+    """Every run of the campaign, checked before anything runs: overrides applied to each scene once, the
+    scene's tracing class loaded once (it must import here as in the workers)."""
+    if c.duration is not None and not (isinstance(c.duration, int | float) and 0 < c.duration < float("inf")):
+        raise UserError(f"duration must be a number of seconds > 0, got {c.duration!r}")
     ver = version()
     out = []
     names = list(c.sets)
@@ -110,25 +127,30 @@ def specs(c: Campaign) -> list[dict[str, Any]]:
     for scene in c.scenes:
         sc = load_scene_file(scene)
         digest = scene_digest(scene)
+        tracing_sink(sc)                            # a tracing class that does not load: file:line, nothing run
         for combo in combos:
             overrides = dict(zip(names, combo, strict=True))
             apply(sc, overrides)                    # refuses a bad path or value now, nothing run
             for seed in c.seeds:
-                out.append({"key": run_key(digest, overrides, seed, ver), "scene": scene,
+                out.append({"key": run_key(digest, overrides, seed, ver, c.duration), "scene": scene,
                             "scene_name": sc.name, "overrides": overrides, "seed": seed, "version": ver,
-                            "duration": c.duration})
-    if c.duration is not None and not (isinstance(c.duration, int | float) and 0 < c.duration < float("inf")):
-        raise UserError(f"duration must be a number of seconds > 0, got {c.duration!r}")
+                            "duration": c.duration, "keep_trace": c.keep_traces})
     return out
 
 
 def run_one(spec: Mapping[str, Any]) -> dict[str, Any]:
-    """A campaign worker's job: one run to one row (never raises: a failure is a row with its error)."""
+    """A campaign worker's job: one run to one row (never raises: a failure is a row with its error).  With
+    `keep_trace` the row carries the run's trace, gzip-compressed, under TRACE (the driver writes it)."""
     row: dict[str, Any] = {"key": spec["key"], "scene": spec["scene_name"], "seed": spec["seed"],
                            "version": spec["version"]}
     row.update({f"param.{k}": str(v) for k, v in spec["overrides"].items()})
     try:
-        r = run(spec["scene"], seed=spec["seed"], duration=spec["duration"], overrides=spec["overrides"])
+        with tempfile.TemporaryDirectory(prefix="uwsimnet-run-") as tmp:
+            path = Path(tmp) / "trace.jsonl" if spec.get("keep_trace") else None
+            r = run(spec["scene"], seed=spec["seed"], duration=spec["duration"], overrides=spec["overrides"],
+                    trace_path=path)
+            if path is not None:
+                row[TRACE] = _gzipped(path)
     except Exception as e:  # noqa: BLE001 - recorded, the campaign goes on
         last = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
         where = f" ({Path(last.filename).name}:{last.lineno})" if last else ""
@@ -139,7 +161,25 @@ def run_one(spec: Mapping[str, Any]) -> dict[str, Any]:
     return row
 
 
+def _gzipped(path: Path) -> bytes:
+    """The file gzip-compressed without a time stamp or a name (the same bytes wherever it is made), streamed
+    so that only the compressed trace is held in memory."""
+    buf = io.BytesIO()
+    with open(path, "rb") as src, gzip.GzipFile(fileobj=buf, mode="wb", mtime=0) as gz:
+        shutil.copyfileobj(src, gz, 1 << 20)
+    return buf.getvalue()
+
+
+TRACE = "_trace"
+"""The key of a row that carries its run's compressed trace from a worker to the driver (not a column)."""
+
+
 def _write_row(rows_dir: Path, row: dict[str, Any]) -> None:
+    trace = row.pop(TRACE, None)
+    if trace is not None:                           # the trace first: a row without its trace runs again
+        tmp = rows_dir / f".{row['key']}.trace.tmp"
+        tmp.write_bytes(trace)
+        os.replace(tmp, trace_file(rows_dir, row["key"]))
     tmp = rows_dir / f".{row['key']}.tmp"
     tmp.write_text(json.dumps(row, sort_keys=True, allow_nan=False, default=_finite))
     os.replace(tmp, rows_dir / f"{row['key']}.json")
@@ -149,8 +189,18 @@ def _finite(x: Any) -> Any:
     raise TypeError(f"not JSON: {x!r}")
 
 
-def done_keys(rows_dir: Path) -> set[str]:
-    return {p.stem for p in rows_dir.glob("*.json")}
+def trace_file(rows_dir: Path, key: str) -> Path:
+    return rows_dir / f"{key}.jsonl.gz"
+
+
+def done_keys(rows_dir: Path, keep_traces: bool = False) -> set[str]:
+    """Keys with a row (and, when traces are kept, with the trace of a successful run too)."""
+    keys = {p.stem for p in rows_dir.glob("*.json")}
+    if not keep_traces:
+        return keys
+    traced = {k for k in keys if trace_file(rows_dir, k).is_file()}
+    return traced | {k for k in keys - traced                      # a failed run has no trace to keep
+                     if json.loads((rows_dir / f"{k}.json").read_text()).get("status") != "ok"}
 
 
 def _local(jobs: list[dict[str, Any]], workers: int) -> Iterable[dict[str, Any]]:
@@ -206,7 +256,7 @@ def execute(c: Campaign, on_progress: Callable[[int, int, dict[str, Any]], None]
     all_specs = specs(c)
     rows_dir = c.out / "rows"
     rows_dir.mkdir(parents=True, exist_ok=True)
-    have = done_keys(rows_dir)
+    have = done_keys(rows_dir, c.keep_traces)
     todo = [s for s in all_specs if s["key"] not in have]
     total = len(todo)
     source = _dask(todo, c.workers, c.scheduler) if c.scheduler else _local(todo, c.workers)

@@ -1,8 +1,8 @@
 """`uwsimnet sweep`: a campaign of runs over parameter values and seeds (docs/campaigns.md).
 
     uwsimnet sweep SCENE [SCENE ...] --set PATH=V1,V2 [--set ...] --seeds 1-20 [--workers N]
-                   [--scheduler local|ADDRESS] [--duration S] --out DIR
-    uwsimnet sweep CAMPAIGN.toml [--workers N] [--scheduler ...] [--out DIR]
+                   [--scheduler local|ADDRESS] [--duration S] [--keep-traces] --out DIR
+    uwsimnet sweep CAMPAIGN.toml [--workers N] [--scheduler ...] [--keep-traces] [--out DIR]
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..app.campaign import Campaign, execute, load_campaign, parse_seeds, parse_set, plain_progress, specs
+from ..app.campaign import Campaign, done_keys, execute, load_campaign, parse_seeds, parse_set, plain_progress, specs
 from ..errors import UserError
 
 
@@ -26,6 +26,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, help="worker processes (default 1; with --scheduler local: Dask workers)")
     p.add_argument("--scheduler", help="run on Dask: 'local' (a LocalCluster) or a scheduler address tcp://HOST:8786")
     p.add_argument("--out", help="output folder (default out/sweep; re-running resumes it)")
+    p.add_argument("--keep-traces", action="store_true",
+                   help="keep every run's trace as OUT/rows/<key>.jsonl.gz (campaign file: keep_traces = true)")
     p.add_argument("--dry-run", action="store_true", help="list the runs (and which have a row already); run none")
     p.set_defaults(fn=run)
 
@@ -56,12 +58,14 @@ def run(a: argparse.Namespace) -> int:
         c.scheduler = a.scheduler
     if a.out is not None:
         c.out = Path(a.out)
+    if a.keep_traces:
+        c.keep_traces = True
     if not 1 <= c.workers <= 512:
         raise UserError(f"--workers {c.workers}: expected 1..512")
     if c.duration is not None and not 0 < c.duration < float("inf"):
         raise UserError("--duration must be a number of seconds > 0")
     if a.dry_run:
-        done = {f.stem for f in (c.out / "rows").glob("*.json")}
+        done = done_keys(c.out / "rows", c.keep_traces)
         runs = specs(c)
         for r in runs:
             params = " ".join(f"{k}={v}" for k, v in r["overrides"].items())

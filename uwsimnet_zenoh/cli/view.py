@@ -38,7 +38,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     v.set_defaults(fn=cmd_view)
 
     p = sub.add_parser("pcap", help="a trace as pcapng for Wireshark (one packet per frame on air)")
-    p.add_argument("trace", nargs="?")
+    p.add_argument("trace", nargs="?", metavar="TRACE",
+                   help="trace file written by `uwsimnet run --trace` (JSON Lines, or .jsonl.gz)")
     p.add_argument("-o", "--out", help="pcapng file to write")
     p.add_argument("--dissector", action="store_true",
                    help="print the path of the Wireshark Lua dissector shipped with uwsimnet and exit")

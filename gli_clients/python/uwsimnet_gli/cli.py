@@ -197,10 +197,30 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_vehicle(world: World, vehicle: str) -> None:
+    """GliError when the world's brokers answer and none has `vehicle`: a pose for a name no scene has is
+    published to nobody, so a typo would otherwise pass in silence.  Unchecked (a note on stderr) when no
+    broker answers `control/state` (not started yet, or this identity may not ask)."""
+    if world.access is not None and access_refusals(world.access, "control", world.name):
+        print(f"gli: this identity may not ask world {world.name!r} for its vehicles (control/state);"
+              f" {vehicle!r} is not checked", file=sys.stderr)
+        return                                  # the routers would drop the query: no answer to wait for
+    replies = [r for r in world.control_all("state") if r.get("ok")]
+    if not replies:
+        print(f"gli: no broker of world {world.name!r} answers control/state; {vehicle!r} is not checked",
+              file=sys.stderr)
+        return
+    names = sorted({n for r in replies for n in (r.get("vehicles") or {})})
+    if vehicle not in names:
+        raise GliError(f"pose: no vehicle {vehicle!r} in world {world.name!r}"
+                       f" (vehicles: {', '.join(names) or 'none'})")
+
+
 def cmd_pose(args: argparse.Namespace) -> int:
     p0 = (args.x, args.y, args.z)
     v = tuple(args.velocity) if args.velocity else None
     with _world(args, ("pose", (), [args.vehicle])) as world:
+        _check_vehicle(world, args.vehicle)
         key = world.keys.pose(args.vehicle)
         print(f"Declaring Publisher on '{key}'...", file=sys.stderr)
         if not args.rate:
