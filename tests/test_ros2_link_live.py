@@ -1,6 +1,7 @@
 """The ROS 2 link live over loopback: a real `uwsimnet run` (realtime), two links (robot A on ROS domain 1,
 robot B on domain 2), samples put and taken on rmw_zenoh's keys with its 33-byte attachment. The CDR is made
-by rosbags, not by this project. The Twist's delay is checked against the modem's formula."""
+by real rclpy (the oracle venv of `make ros2-oracle`) where it matters and present, else by rosbags; never by
+this project. The Twist's delay is checked against the modem's formula."""
 
 from __future__ import annotations
 
@@ -55,6 +56,15 @@ def sim(tmp_path_factory):
                 p.p.wait(5)
 
 
+ORACLE = Path(os.environ.get("UWSIMNET_ROS2_ORACLE") or Path(__file__).resolve().parents[1] / ".venv-ros2-jazzy")
+
+
+def oracle_ready() -> bool:
+    """The venv of `make ros2-oracle` with the sensor_msgs wheel (an older one lacks it)."""
+    return (ORACLE / "bin" / "python").exists() and (ORACLE / "ros2-install" / "lib").is_dir() \
+        and (ORACLE / "share" / "sensor_msgs").is_dir()
+
+
 LATE_S = 0.5
 """How late a realtime delivery may be on a loaded machine before the test calls it wrong (wall clock)."""
 
@@ -68,6 +78,11 @@ def twist_cdr(codec: Codec) -> bytes:
 
 
 def image_cdr(codec: Codec, n: int) -> bytes:
+    """A CompressedImage of n random bytes: rclpy.serialization's when the oracle venv is present (printed)."""
+    if oracle_ready():
+        print("image made by rclpy (sensor_msgs from the ros-jazzy wheels)")
+        return bytes.fromhex(rclpy({"make": {"image": [n, n]}})["image"])
+    print(f"image made by rosbags: no ROS 2 oracle venv at {ORACLE} (make ros2-oracle)")
     import random
     r = random.Random(n)
     return codec.encode(IMAGE, {"header": {"frame_id": "cam"}, "format": "jpeg",
@@ -137,6 +152,12 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         keys = [g[0] for g in got]
         assert keys[1] == tw_b and keys[2] == im_b, keys
         assert got[2][1] == img
+        if oracle_ready():                                       # and rclpy reads it whole on robot B's side
+            import hashlib
+            import random
+            data = random.Random(20_000).randbytes(20_000)
+            assert rclpy({"read_image": [img.hex()]})["read_image"] == [["jpeg", "cam", 20_000,
+                                                                         hashlib.sha256(data).hexdigest()]]
         frame_air = MTU * 8 / BITRATE
         alone = (t1 - t0) / 1e9
         lat = (got[1][3] - t2) / 1e9
@@ -179,13 +200,10 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         sub.undeclare()
 
 
-ORACLE = Path(os.environ.get("UWSIMNET_ROS2_ORACLE") or Path(__file__).resolve().parents[1] / ".venv-ros2-jazzy")
-
-
 def rclpy(req: dict) -> dict:
-    """Real rclpy.serialization in the oracle venv (make ros2-oracle) makes and reads the Twists."""
+    """Real rclpy.serialization in the oracle venv (make ros2-oracle) makes and reads the samples."""
     install = ORACLE / "ros2-install"
-    if not (ORACLE / "bin" / "python").exists() or not (install / "lib").is_dir():
+    if not oracle_ready():
         pytest.skip(f"no ROS 2 oracle venv at {ORACLE} (make ros2-oracle)")
     env = dict(os.environ, PYTHONPATH=str(next((install / "lib").glob("python3*/site-packages"))),
                LD_LIBRARY_PATH=str(install / "lib"), AMENT_PREFIX_PATH=f"{install}:{ORACLE}")

