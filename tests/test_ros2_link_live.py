@@ -30,14 +30,26 @@ DIST = 150.0
 MTU = 128                        # 20 kB in 162 fragments (at most 256)
 TWIST = "geometry_msgs/msg/Twist"
 IMAGE = "sensor_msgs/msg/CompressedImage"
-SCENE = scene_xml(world=WORLD, vehicles=vehicle_xml("alpha", (0, 0, 0), device_xml("alpha-m", 1))
-                  + vehicle_xml("bravo", (DIST, 0, 0), device_xml("bravo-m", 2)))
+LINK = ("<ros2Link><rosDomain>{domain}</rosDomain><mtu>128</mtu>"
+        '<topic name="/cmd_vel" type="geometry_msgs/msg/Twist" dst="{dst}" prio="0" policy="fifo"/>'
+        '<topic name="/camera/compressed" type="sensor_msgs/msg/CompressedImage" dst="{dst}" prio="9"'
+        ' policy="keep_last" depth="2"/></ros2Link>')
+"""The same links as `rules()`, for `uwsimnet ros2-link --scene` (the run has no --ros2: it does not start them)."""
+SCENE = scene_xml(world=WORLD, vehicles=vehicle_xml("alpha", (0, 0, 0), device_xml("alpha-m", 1),
+                                                    LINK.format(domain=1, dst=2))
+                  + vehicle_xml("bravo", (DIST, 0, 0), device_xml("bravo-m", 2), LINK.format(domain=2, dst=1)))
 
 
 @pytest.fixture(scope="module")
-def sim(tmp_path_factory):
+def scene_file(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("r2link")
     (d / "scene.xml").write_text(SCENE)
+    return d / "scene.xml"
+
+
+@pytest.fixture(scope="module")
+def sim(scene_file):
+    d = scene_file.parent
     port = free_port()
     p = Proc([sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(d / "scene.xml"),
               "--listen", f"tcp/127.0.0.1:{port}", "--duration", "300"])
@@ -213,15 +225,16 @@ def rclpy(req: dict) -> dict:
     return json.loads(r.stdout)
 
 
-def test_two_link_processes_carry_rclpy_twists(sim):
-    """Each robot's link is its own `uwsimnet ros2-link` process; rclpy makes the Twist on domain 1 and reads
-    what arrives on domain 2."""
+def test_two_link_processes_carry_rclpy_twists(sim, scene_file):
+    """Each robot's link is its own `uwsimnet ros2-link` process (robot A's from --topic, robot B's from the
+    scene's <ros2Link> by --scene); rclpy makes the Twist on domain 1 and reads what arrives on domain 2."""
     codec = Codec("jazzy")
     cdr = bytes.fromhex(rclpy({"make": {"twist": [0.25, -0.5]}})["twist"])
     topic = f"topic=/cmd_vel,type={TWIST},dir=both,dst=2,prio=0"
-    procs = [Proc([sys.executable, "-m", "uwsimnet_zenoh.cli", "ros2-link", m, "--world", WORLD, "--connect", sim,
-                   "--ros-domain", str(d), "--topic", topic, "--duration", "60"])
-             for m, d in (("alpha-m", 1), ("bravo-m", 2))]
+    cli = [sys.executable, "-m", "uwsimnet_zenoh.cli", "ros2-link"]
+    procs = [Proc([*cli, "alpha-m", "--world", WORLD, "--connect", sim, "--ros-domain", "1", "--topic", topic,
+                   "--duration", "60"]),
+             Proc([*cli, "bravo-m", "--scene", str(scene_file), "--connect", sim, "--duration", "60"])]
     got: list[tuple[str, bytes, bytes]] = []
     cond = threading.Condition()
     diags: list[bytes] = []

@@ -26,7 +26,8 @@ ROS_CONNECT = [f"tcp/localhost:{ROS_PORT}"]
 def add_arguments(r: Any) -> None:
     g = r.add_argument_group("ROS 2 (realtime; needs the extra uwsimnet-zenoh[ros2])")
     g.add_argument("--ros2", action="store_true",
-                   help="be a ROS 2 participant on rmw_zenoh's wire: modem nodes and topics, poses from ROS")
+                   help="be a ROS 2 participant on rmw_zenoh's wire: modem nodes and topics, poses from ROS,"
+                        " the scene's <ros2Link>s")
     g.add_argument("--ros-domain", type=int, metavar="N", help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else 0)")
     g.add_argument("--ros-distro", choices=DISTROS,
                    help=f"the ROS 2 distro of the other nodes (default: $ROS_DISTRO, else {DEFAULT_DISTRO})")
