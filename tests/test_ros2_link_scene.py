@@ -24,6 +24,7 @@ from uwsimnet_zenoh.scene import load_scene_text  # noqa: E402
 
 WORLD = "r2scene"
 TWIST = "geometry_msgs/msg/Twist"
+IMAGE = "sensor_msgs/msg/CompressedImage"
 TOPICS = ('<topic name="/cmd_vel" type="geometry_msgs/msg/Twist" dst="{dst}" prio="0" policy="fifo" rate="20"/>\n'
           '    <topic name="/camera/compressed" type="sensor_msgs/msg/CompressedImage" dir="{cam}" prio="9"'
           ' policy="keep_last" depth="1" budget="400" compress="0"/>')
@@ -88,10 +89,25 @@ def _put_token(s: zenoh.Session, key: str) -> zenoh.LivelinessToken:
     return s.liveliness().declare_token(key)
 
 
+def far_qos(robots: zenoh.Session, topic: str) -> list[str]:
+    """The QoS fields `<rel>:<dur>:<hist>,<depth>:...` of the one publisher of `topic` (mangled) in robot B's
+    graph (domain 2), split at ':' as rmw_zenoh's keyexpr_to_qos does."""
+    far = [str(r.ok.key_expr) for r in robots.liveliness().get("@ros2_lv/2/**", timeout=5) if r.ok]
+    mine = [t.split("/") for t in far if t.split("/")[5] == "MP" and t.split("/")[9] == topic]
+    assert len(mine) == 1, far
+    return mine[0][12].split(":")
+
+
+def _notify(cond: threading.Condition) -> None:
+    with cond:
+        cond.notify_all()
+
+
 def test_run_starts_the_scene_links_copies_qos_and_sums_up(tmp_path):
     """`uwsimnet run --ros2`: the scene's two links carry a Twist from domain 1 to domain 2; a publisher on
     domain 1 whose token says BEST_EFFORT, depth 5 is republished on domain 2 under a token saying the same;
-    the run's summary has the links' per-topic counters."""
+    one saying TRANSIENT_LOCAL, depth 1 (images) too, and a late joiner on domain 2 gets the last image; the
+    run's summary has the links' per-topic counters."""
     from test_ros2_link_live import ORACLE, oracle_ready, rclpy
 
     codec = Codec("jazzy")
@@ -143,16 +159,44 @@ def test_run_starts_the_scene_links_copies_qos_and_sums_up(tmp_path):
                 robots.put(key, cdr, attachment=att)
                 with cond:
                     assert cond.wait_for(lambda n=n: len(got) > n, 30), "the Twist did not cross"
-                far = [str(r.ok.key_expr) for r in robots.liveliness().get("@ros2_lv/2/**", timeout=5) if r.ok]
-                mine = [t.split("/") for t in far if t.split("/")[5] == "MP" and t.split("/")[9] == "%cmd_vel"]
-                assert len(mine) == 1, far
-                q = mine[0][12].split(":")                    # <rel>:<dur>:<hist>,<depth>:...
+                q = far_qos(robots, "%cmd_vel")
                 qos = (q[0], q[2].split(",")[1])
             assert qos == ("2", "5"), qos
             assert got[-1] == cdr
             if oracle_ready():
                 assert rclpy({"read": [got[-1].hex()]})["read"] == [[0.25, -0.5]]
             sub.undeclare()
+            # a TRANSIENT_LOCAL publisher (depth 1) of images: the far side keeps the last one for late joiners
+            hi = codec.key_hash(IMAGE)
+            toks.append(_put_token(robots, f"@ros2_lv/1/{zid}/0/2/MP/%/%/talker/%camera%compressed/"
+                                           f"sensor_msgs::msg::dds_::CompressedImage_/{hi}/:1:,1:,:,:,,"))
+            img_key = f"camera/compressed/sensor_msgs::msg::dds_::CompressedImage_/{hi}"
+            imgs: list[bytes] = []
+            isub = robots.declare_subscriber(f"2/{img_key}", lambda smp: (imgs.append(smp.payload.to_bytes()),
+                                                                         _notify(cond)))
+            dur, k = None, 0
+            deadline = time.monotonic() + 60
+            while dur != ("1", "1") and time.monotonic() < deadline:
+                k += 1
+                img = codec.encode(IMAGE, {"header": {"frame_id": "cam"}, "format": "jpeg", "data": bytes([k]) * 64})
+                n = len(imgs)
+                att = k.to_bytes(8, "little") + time.time_ns().to_bytes(8, "little") + bytes([16]) + bytes(16)
+                robots.put(f"1/{img_key}", img, attachment=att)
+                with cond:
+                    assert cond.wait_for(lambda n=n: len(imgs) > n, 30), "the image did not cross"
+                q = far_qos(robots, "%camera%compressed")
+                dur = (q[1], q[2].split(",")[1])
+            assert dur == ("1", "1") and imgs[-1] == img
+            isub.undeclare()
+            import zenoh.ext as zext
+            late: list[bytes] = []
+            lsub = zext.declare_advanced_subscriber(
+                robots, f"2/{img_key}", lambda smp: (late.append(smp.payload.to_bytes()), _notify(cond)),
+                history=zext.HistoryConfig(detect_late_publishers=True))
+            with cond:
+                assert cond.wait_for(lambda: late, 30), "a late joiner got no history (TRANSIENT_LOCAL)"
+            assert late == [img]                                     # the last one only: depth 1
+            lsub.undeclare()
             for t in toks:
                 t.undeclare()
         p.p.send_signal(signal.SIGINT)
@@ -165,7 +209,9 @@ def test_run_starts_the_scene_links_copies_qos_and_sums_up(tmp_path):
         recv = [ln for ln in lines if ln.startswith("ros2 link bravo-m /cmd_vel:")]
         assert sent and f"offered {seq}, sent {seq}" in sent[0], lines
         assert recv and f"received {seq}, latency mean" in recv[0], lines
-        print("\n".join(sent + recv))
+        cams = [ln for ln in lines if ln.startswith(("ros2 link alpha-m /camera", "ros2 link bravo-m /camera"))]
+        assert len(cams) == 2 and f"offered {k}, sent {k}" in cams[0] and f"received {k}," in cams[1], lines
+        print("\n".join(sent + recv + cams))
     finally:
         if p.p.poll() is None:
             p.p.send_signal(signal.SIGINT)

@@ -22,7 +22,7 @@ from typing import Any
 import zenoh
 import zenoh.ext as zext
 from uwsimnet_gli.modem import Modem
-from uwsimnet_gli.world import World
+from uwsimnet_gli.world import World, load_config
 
 from ..ros2 import link as L
 from ..ros2 import wire as rw
@@ -58,7 +58,10 @@ class Ros2Link:
         self._stop = threading.Event()
         self._entities: list[Any] = []
         self._tokens: list[Any] = []
-        self.world = World(world, connect=list(connect))
+        conf = load_config(None, list(connect))
+        # as rmw_zenoh's sessions: a TRANSIENT_LOCAL republisher (AdvancedPublisher's cache) needs timestamps
+        conf.insert_json5("timestamping/enabled", "true")
+        self.world = World(world, config=conf)
         try:
             s = self.world.session
             self.graph = Graph(domain, str(s.zid()), codec)
@@ -118,22 +121,25 @@ class Ros2Link:
         its QoS, so a QoS change is a new publisher in the graph). TRANSIENT_LOCAL: a cache of `depth`
         samples for late joiners, as rmw_zenoh's AdvancedPublisher."""
         s, r = self.world.session, self.rules[i]
+        ep = self.graph.add("MP", NODE, self._namespace, r.name, r.type, qos)
+        try:
+            if qos.durability == rw.TRANSIENT_LOCAL:
+                pub = zext.declare_advanced_publisher(s, ep.key, cache=zext.CacheConfig(max(1, qos.depth)),
+                                                      publisher_detection=True)
+            else:
+                pub = s.declare_publisher(ep.key, reliability=zenoh.Reliability.RELIABLE
+                                          if qos.reliability == rw.RELIABLE else zenoh.Reliability.BEST_EFFORT)
+        except zenoh.ZError:
+            self.graph.endpoints.remove(ep)     # the old publisher stays (the caller counts the problem)
+            raise
         old = self.pubs.pop(i, None)
-        if old is not None:
+        if old is not None:                     # the new one is in place: the old one leaves the graph
+            ep.seq = old[0].seq
             with contextlib.suppress(Exception):
                 self._pub_tokens.pop(i).undeclare()
             with contextlib.suppress(Exception):
                 old[1].undeclare()
             self.graph.endpoints.remove(old[0])
-        ep = self.graph.add("MP", NODE, self._namespace, r.name, r.type, qos)
-        if old is not None:
-            ep.seq = old[0].seq
-        if qos.durability == rw.TRANSIENT_LOCAL:
-            pub = zext.declare_advanced_publisher(s, ep.key, cache=zext.CacheConfig(max(1, qos.depth)),
-                                                  publisher_detection=True)
-        else:
-            pub = s.declare_publisher(ep.key, reliability=zenoh.Reliability.RELIABLE
-                                      if qos.reliability == rw.RELIABLE else zenoh.Reliability.BEST_EFFORT)
         self.pubs[i] = (ep, pub)
         self._pub_tokens[i] = s.liveliness().declare_token(ep.token)
 
@@ -257,7 +263,10 @@ class Ros2Link:
         if i not in self.pubs:
             return self.problem("unknown_topic", f"QoS of topic index {i} from {src}")
         if self.pubs[i][0].qos != qos:
-            self._declare_pub(i, qos)
+            try:
+                self._declare_pub(i, qos)
+            except zenoh.ZError as e:
+                self.problem("qos", f"{self.rules[i].name}: cannot republish with {qos.keyexpr()}: {e}")
 
     def publish_diagnostics(self) -> None:
         now_ns = time.time_ns()
