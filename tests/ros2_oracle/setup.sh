@@ -2,8 +2,9 @@
 # Real ROS 2 Jazzy code for tests/test_ros2_real.py and tests/test_ros2_link_*.py (`make ros2-oracle`): the
 # PyPI ros-jazzy-* wheels (rclpy.serialization with rmw_fastrtps_cpp, rosidl's type-hash generator, the message
 # packages that have a wheel: std, geometry, nav, sensor (the link's CompressedImage), diagnostic, rosgraph) in a
-# venv, plus the message packages the wheels lack (tf2_msgs) and this project's (uwsimnet_msgs, dmac2_interfaces), built from
-# .msg files with the wheels' own rosidl/ament cmake toolchain (needs cmake and g++). About 250 MB.
+# venv, plus the message packages the wheels lack (tf2_msgs) and this project's (uwsimnet_msgs,
+# dmac2_interfaces), built from .msg files with the wheels' own rosidl/ament cmake toolchain (needs cmake and
+# g++). About 250 MB.
 #   tests/ros2_oracle/setup.sh VENV [PYTHON]
 set -euo pipefail
 V=$(realpath -m "$1")
