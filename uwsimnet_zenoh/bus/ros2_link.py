@@ -71,7 +71,9 @@ class Ros2Link:
             self._namespace = namespace
             for i, r in enumerate(self.rules):
                 if r.direction in ("out", "both"):
-                    ep = self.graph.add("MS", NODE, namespace, r.name, r.type, rw.QoS(depth=r.depth))
+                    # best effort, volatile: by ROS's QoS rules a subscription any publisher's QoS is compatible with
+                    ep = self.graph.add("MS", NODE, namespace, r.name, r.type,
+                                        rw.QoS(reliability=rw.BEST_EFFORT, depth=r.depth))
                     self.subs[ep.topic_key] = i
                     # REMOTE: never hear our own republications (on a 'both' topic they would echo back over the water)
                     self._entities.append(s.declare_subscriber(ep.match_key, self._on_ros,
