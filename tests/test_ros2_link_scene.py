@@ -246,3 +246,21 @@ def test_ros2_link_command_takes_the_scene_link(tmp_path):
         r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "ros2-link", *extra], capture_output=True,
                            text=True, timeout=60)
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
+
+
+def test_run_summary_lines_name_drops_and_problems():
+    """The run summary's link lines: a topic that moved nothing is left out; drops by reason and the problems
+    are said (the counters are the link's own summary)."""
+    from uwsimnet_zenoh.app.ros2 import link_lines
+
+    quiet = {"offered": 0, "sent": 0, "frames": 0, "bytes": 0, "received": 0, "dropped": {},
+             "latency_mean_s": None, "latency_max_s": None}
+    busy = dict(quiet, offered=5, sent=3, frames=9, bytes=400, dropped={"rate": 1, "superseded": 1})
+    rx = dict(quiet, received=2, latency_mean_s=0.125, latency_max_s=0.2, dropped={"rx_lost": 1})
+    lines = link_lines({"a-m": {"topics": {"/q": quiet, "/cam": busy}, "problems": {"cdr": 2}},
+                        "b-m": {"topics": {"/cam": rx}, "problems": {}}})
+    assert lines == ["ros2 link a-m /cam: offered 5, sent 3 (9 frames, 400 B), received 0; dropped 1 rate,"
+                     " 1 superseded",
+                     "ros2 link a-m problems: 2 cdr",
+                     "ros2 link b-m /cam: offered 0, sent 0 (0 frames, 0 B), received 2, latency mean 125.0 ms max"
+                     " 200.0 ms; dropped 1 rx_lost"]
