@@ -264,3 +264,17 @@ def test_run_summary_lines_name_drops_and_problems():
                      "ros2 link a-m problems: 2 cdr",
                      "ros2 link b-m /cam: offered 0, sent 0 (0 frames, 0 B), received 2, latency mean 125.0 ms max"
                      " 200.0 ms; dropped 1 rx_lost"]
+
+
+def test_run_with_a_link_of_an_unknown_type_is_one_line(tmp_path):
+    """A type the distro's type store does not know is found when the run starts the link: file:line of the
+    <ros2Link>, exit 2, no traceback (the scene alone cannot know the distro)."""
+    text = GOOD.replace("geometry_msgs/msg/Twist", "foo_msgs/msg/Bar")
+    (tmp_path / "s.xml").write_text(text)
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(tmp_path / "s.xml"), "--ros2",
+                        "--listen", f"tcp/127.0.0.1:{free_port()}", "--duration", "30"],
+                       capture_output=True, text=True, timeout=120)
+    line = [i for i, ln in enumerate(text.splitlines(), 1) if "<ros2Link>" in ln][0]
+    err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert err[-1].startswith(f"{tmp_path / 's.xml'}:{line}: ros2Link of alpha: ") and "foo_msgs/msg/Bar" in err[-1], err

@@ -8,7 +8,7 @@ import os
 import re
 from typing import TYPE_CHECKING, Any
 
-from ..errors import UserError
+from ..errors import UserError, UwsimnetError
 from ..ros2.distros import DEFAULT_DISTRO, DISTROS
 
 if TYPE_CHECKING:
@@ -154,14 +154,14 @@ def start_links(scene: Any, connect: list[str], world: str, distro: str) -> list
             spec = v.ros2_link
             if spec is None or spec.modem not in {d.dccomms_id for d in v.devices}:   # not run here (--channels)
                 continue
-            link = Ros2Link(connect, world, spec.modem, spec.topics, codec=codec(distro), domain=spec.domain,
-                            namespace=spec.namespace, mtu=spec.mtu)
+            try:
+                link = Ros2Link(connect, world, spec.modem, spec.topics, codec=codec(distro), domain=spec.domain,
+                                namespace=spec.namespace, mtu=spec.mtu)
+            except (GliError, UwsimnetError) as e:     # e.g. a type the distro's type store does not know
+                raise UserError(f"{scene.source}:{spec.line}: ros2Link of {v.name}: {e}") from None
             links.append(link.__enter__())
             print(f"uwsimnet: ros2Link of {v.name}: {spec.modem} carries {', '.join(r.name for r in spec.topics)}"
                   f" of ROS domain {spec.domain}", flush=True)
-    except GliError as e:
-        close_links(links)
-        raise UserError(f"{scene.source}: ros2Link: {e}") from None
     except BaseException:
         close_links(links)
         raise

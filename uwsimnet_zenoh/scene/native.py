@@ -64,7 +64,7 @@ class NativeVocabulary(XmlReader):
         try:
             spec = LinkSpec(modem, domain, tuple(rules), mtu=mtu, namespace=namespace, line=el.sourceline or 0)
         except LinkError as e:
-            where = {"ROS domain": k.get("rosDomain"), "mtu": mtu_el}
+            where = {"ROS domain": k.get("rosDomain"), "mtu": mtu_el, "namespace": k.get("namespace")}
             self.fail(next((w for p, w in where.items() if str(e).startswith(p) and w is not None), el),
                       f"ros2Link: {e}")
         return spec, topic_els

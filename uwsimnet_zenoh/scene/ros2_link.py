@@ -8,6 +8,7 @@ reader can check a link at load time (file:line) without importing the link itse
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -18,6 +19,9 @@ MAX_TOPICS = 63
 """Topic indices 0..62 carry samples; 63 is the link's own (the QoS announcements, docs/ros2-link.md)."""
 DIRECTIONS = ("out", "in", "both")
 POLICIES = ("fifo", "keep_last")
+_NAME = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
+"""A fully qualified ROS 2 name: tokens of letters, digits and '_', none starting with a digit (ros2/wire.py)."""
+_TYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Z][A-Za-z0-9]*")   # as ros2/wire.py
 
 
 class LinkError(UwsimnetError, ValueError):
@@ -44,7 +48,10 @@ class TopicRule:
     def __post_init__(self) -> None:
         if not self.name.startswith("/"):
             raise LinkError(f"topic {self.name!r}: a fully qualified name starts with '/'")
-        if self.type.count("/") != 2 or not all(self.type.split("/")):
+        if not _NAME.fullmatch(self.name):
+            raise LinkError(f"topic {self.name!r}: not a ROS 2 name (letters, digits and '_' between '/', no"
+                            " token starting with a digit)")
+        if not _TYPE.fullmatch(self.type):
             raise LinkError(f"topic {self.name}: type {self.type!r} is not pkg/msg/Name")
         if self.direction not in DIRECTIONS:
             raise LinkError(f"topic {self.name}: direction {self.direction!r} (one of {', '.join(DIRECTIONS)})")
@@ -133,6 +140,8 @@ class LinkSpec:
             raise LinkError(f"ROS domain {self.domain}: expected 0..232")
         if self.mtu < 10:
             raise LinkError(f"mtu {self.mtu}: at least 10 bytes (a first fragment's header is 8)")
+        if self.namespace != "/" and not _NAME.fullmatch("/" + self.namespace.strip("/")):
+            raise LinkError(f"namespace {self.namespace!r}: not a ROS 2 namespace")
 
     def signature(self) -> tuple[tuple[str, str], ...]:
         """What the far ends must agree on: the topics' names and types, in order (the index on air)."""
