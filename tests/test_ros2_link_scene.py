@@ -114,8 +114,9 @@ def test_run_starts_the_scene_links_copies_qos_and_sums_up(tmp_path):
     (tmp_path / "scene.xml").write_text(GOOD)
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
+    trace = tmp_path / "t.jsonl"
     p = Proc([sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(tmp_path / "scene.xml"), "--ros2",
-              "--listen", ep, "--duration", "300"])
+              "--listen", ep, "--duration", "300", "--trace", str(trace)])
     out: list[str] = []
     try:
         deadline = time.monotonic() + 60
@@ -212,6 +213,14 @@ def test_run_starts_the_scene_links_copies_qos_and_sums_up(tmp_path):
         cams = [ln for ln in lines if ln.startswith(("ros2 link alpha-m /camera", "ros2 link bravo-m /camera"))]
         assert len(cams) == 2 and f"offered {k}, sent {k}" in cams[0] and f"received {k}," in cams[1], lines
         print("\n".join(sent + recv + cams))
+        # the same counters in the trace's end record, with the QoS each side's topic table holds
+        import json
+        end = json.loads(trace.read_text().splitlines()[-1])
+        a, b = end["ros2_link"]["alpha-m"]["topics"], end["ros2_link"]["bravo-m"]["topics"]
+        assert end["ev"] == "end" and a["/cmd_vel"]["sent"] == seq and b["/cmd_vel"]["received"] == seq
+        assert a["/cmd_vel"]["qos_out"] == b["/cmd_vel"]["qos_in"] == "2:2:1,5:,:,:,,"           # explicit form
+        assert a["/camera/compressed"]["qos_out"] == b["/camera/compressed"]["qos_in"] == "1:1:1,1:,:,:,,"
+        assert end["ros2_link"]["alpha-m"]["qos_announcements"] >= 2
     finally:
         if p.p.poll() is None:
             p.p.send_signal(signal.SIGINT)
@@ -277,4 +286,5 @@ def test_run_with_a_link_of_an_unknown_type_is_one_line(tmp_path):
     line = [i for i, ln in enumerate(text.splitlines(), 1) if "<ros2Link>" in ln][0]
     err = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
-    assert err[-1].startswith(f"{tmp_path / 's.xml'}:{line}: ros2Link of alpha: ") and "foo_msgs/msg/Bar" in err[-1], err
+    assert err[-1].startswith(f"{tmp_path / 's.xml'}:{line}: ros2Link of alpha: "), err
+    assert "foo_msgs/msg/Bar" in err[-1], err

@@ -360,6 +360,8 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 summary["ingress_warn"] = broker.ingress_warn_s
             if reason == "duration" and duration is not None:
                 t_stop = min(t_stop, duration)
+            if summary["ros2_link"]:            # the links' counters in the trace too (docs/ros2-link.md)
+                extra["ros2_link"] = summary["ros2_link"]
             out.finish(net.end_record(reason, t=t_stop, **extra))     # the last batch, the end record last
             out.__exit__(None, None, None)
             session.close()
