@@ -215,3 +215,25 @@ def test_qos_announcement_is_the_documented_layout_and_precedes_the_message():
     s.set_qos("/cmd_vel", w.QoS(depth=7))                           # changed: announced before the next one
     s.offer("/cmd_vel", cdr, 0, now=100.0 + L.QOS_PERIOD_S + 1)
     assert L.decode_qos(s.next_frame()[1]) == (0, w.QoS(depth=7))
+
+
+def test_rclpy_image_fragments_and_reassembles_whole():
+    """A 20 kB sensor_msgs/CompressedImage made by real rclpy (the oracle venv; skipped, saying so, without
+    it): random bytes do not deflate, so it goes raw in 1 + ceil((n - (m - 8)) / (m - 4)) frames at MTU m,
+    and the reassembled bytes are what rclpy made and reads back."""
+    import hashlib
+    import random
+
+    from ros2_oracle_link import rclpy
+
+    img = bytes.fromhex(rclpy({"make": {"image": [20_000, 7]}})["image"])
+    payload, z = L.pack(img, True)
+    assert (payload, z) == (img, False)
+    frames = L.fragment(1, 9, payload, z, 1_733_000_000_000_000_000, 128)
+    assert len(frames) == 1 + math.ceil((len(img) - 120) / 124) == 162 and max(map(len, frames)) <= 128
+    r = L.Reassembler()
+    done = [r.push(3, f, 0.0) for f in frames]
+    assert done[:-1] == [None] * 161 and done[-1][:2] == (1, img)
+    data = random.Random(7).randbytes(20_000)
+    assert rclpy({"read_image": [done[-1][1].hex()]})["read_image"] == [["jpeg", "cam", 20_000,
+                                                                          hashlib.sha256(data).hexdigest()]]

@@ -5,8 +5,6 @@ this project. The Twist's delay is checked against the modem's formula."""
 
 from __future__ import annotations
 
-import json
-import os
 import signal
 import subprocess
 import sys
@@ -18,6 +16,7 @@ import pytest
 
 pytest.importorskip("rosbags", reason="ROS 2 CDR needs the extra: pip install 'uwsimnet-zenoh[ros2]'")
 import zenoh  # noqa: E402
+from ros2_oracle_link import ORACLE, oracle_ready, rclpy  # noqa: E402
 from test_broker_e2e import BITRATE, PROP, Proc, device_xml, free_port, scene_xml, vehicle_xml  # noqa: E402
 
 from uwsimnet_zenoh.bus.ros2_link import Ros2Link  # noqa: E402
@@ -66,15 +65,6 @@ def sim(scene_file):
             except subprocess.TimeoutExpired:
                 p.p.kill()
                 p.p.wait(5)
-
-
-ORACLE = Path(os.environ.get("UWSIMNET_ROS2_ORACLE") or Path(__file__).resolve().parents[1] / ".venv-ros2-jazzy")
-
-
-def oracle_ready() -> bool:
-    """The venv of `make ros2-oracle` with the sensor_msgs wheel (an older one lacks it)."""
-    return (ORACLE / "bin" / "python").exists() and (ORACLE / "ros2-install" / "lib").is_dir() \
-        and (ORACLE / "share" / "sensor_msgs").is_dir()
 
 
 LATE_S = 0.5
@@ -210,19 +200,6 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         assert cam["received"] == "1" and float(cam["latency_max_s"]) > 0
         assert st["uwsimnet_link/bravo-m/cmd_vel"]["received"] == "4"
         sub.undeclare()
-
-
-def rclpy(req: dict) -> dict:
-    """Real rclpy.serialization in the oracle venv (make ros2-oracle) makes and reads the samples."""
-    install = ORACLE / "ros2-install"
-    if not oracle_ready():
-        pytest.skip(f"no ROS 2 oracle venv at {ORACLE} (make ros2-oracle)")
-    env = dict(os.environ, PYTHONPATH=str(next((install / "lib").glob("python3*/site-packages"))),
-               LD_LIBRARY_PATH=str(install / "lib"), AMENT_PREFIX_PATH=f"{install}:{ORACLE}")
-    r = subprocess.run([str(ORACLE / "bin" / "python"), str(Path(__file__).parent / "ros2_oracle" / "link_samples.py")],
-                       input=json.dumps(req), capture_output=True, text=True, env=env, timeout=120)
-    assert r.returncode == 0, r.stderr
-    return json.loads(r.stdout)
 
 
 def test_two_link_processes_carry_rclpy_twists(sim, scene_file):

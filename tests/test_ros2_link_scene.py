@@ -108,7 +108,7 @@ def test_run_starts_the_scene_links_copies_qos_and_sums_up(tmp_path):
     domain 1 whose token says BEST_EFFORT, depth 5 is republished on domain 2 under a token saying the same;
     one saying TRANSIENT_LOCAL, depth 1 (images) too, and a late joiner on domain 2 gets the last image; the
     run's summary has the links' per-topic counters."""
-    from test_ros2_link_live import ORACLE, oracle_ready, rclpy
+    from ros2_oracle_link import ORACLE, oracle_ready, rclpy
 
     codec = Codec("jazzy")
     (tmp_path / "scene.xml").write_text(GOOD)
