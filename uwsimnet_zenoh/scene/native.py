@@ -74,11 +74,14 @@ class NativeVocabulary(XmlReader):
         self._no_attributes(el, keys)
         if any(_is_element(c) for c in el) or (el.text or "").strip():
             self.fail(el, "topic: its settings are attributes (name=, type=, dir=, ...), it holds nothing")
+        missing = [a for a in ("name", "type") if a not in el.attrib]
+        if missing:
+            self.fail(el, f"topic: missing {' and '.join(missing)}= (both are required)")
         fields = {("topic" if k == "name" else k): v for k, v in el.attrib.items()}
         try:
             return rule_from_fields(fields, "topic")
         except LinkError as e:
-            self.fail(el, str(e).replace("'topic'", "'name'").replace("topic and type", "name and type"))
+            self.fail(el, str(e))
 
     def check_ros2_links(self, vehicles: Sequence[tuple[Vehicle, list[_El]]], addresses: set[int]) -> None:
         """Across the scene: one ROS domain per robot (its graph is its own), the same topics in the same
