@@ -65,6 +65,9 @@ def test_scene_link_is_the_cli_form():
     (link(1, 2, "out", "<modem>zulu-m</modem>"), "", ("<modem>", 1), "'zulu-m' is not a device of this vehicle"),
     (link(1, 2, "out", "<mtu>4096</mtu>"), "", ("<mtu>", 1), "4096 is larger than alpha-m's maxFrameBytes 2048"),
     (link(1, 2, "out").replace("<rosDomain>1</rosDomain>", ""), "", ("<ros2Link>", 1), "missing <rosDomain>"),
+    (link(300, 2, "out"), "", ("<rosDomain>", 1), "ROS domain 300: expected 0..232"),
+    (link(1, 2, "out", "<namespace>/robot-1</namespace>"), "", ("<namespace>", 1), "not a ROS 2 namespace"),
+    (link(1, 2, "out").replace('name="/cmd_vel"', 'name="/cmd-vel"'), "", ("/cmd-vel", 1), "not a ROS 2 name"),
     (link(1, 2, "out"), link(2, 1, "in").replace("/camera/compressed", "/camera/raw"), ("/camera/raw", 1),
      "position 2 on alpha's link"),
 ])
