@@ -45,7 +45,7 @@ ros2-peers:
 	  test -x .venv-zenoh-$$v/bin/python || { $(PY) -m venv .venv-zenoh-$$v && \
 	    .venv-zenoh-$$v/bin/pip install -q eclipse-zenoh==$$v; } || exit 1; done
 
-## Real ROS 2 Jazzy code (rclpy, rosidl) for tests/test_ros2_real.py: PyPI wheels + local message builds
+## Real ROS 2 Jazzy code (rclpy, rosidl) for tests/test_ros2_real.py and test_ros2_link_*.py: PyPI wheels + local message builds
 ros2-oracle:
 	@s=$$(cat uwsimnet_zenoh/ros2/interfaces/*/msg/*.msg uwsimnet_zenoh/ros2/interfaces/*/*.* tests/ros2_oracle/setup.sh \
 	      | sha256sum | cut -c1-16); test "$$(cat .venv-ros2-jazzy/.stamp 2>/dev/null)" = "$$s" \

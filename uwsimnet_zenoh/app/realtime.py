@@ -270,6 +270,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                               " another endpoint") from None
         broker = None
         ros = None
+        links: list[Any] = []
         meta = net.meta()
         meta.update(clock="realtime", world=world, duration=duration,
                     channels=sorted(net.channels), external_flows=sorted(external))
@@ -307,6 +308,10 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 b = ros.bridge
                 print(f"uwsimnet: ROS 2 {ros_opts.distro}, domain {ros_opts.domain}: {len(b.graph.nodes)} node(s),"
                       f" topics {', '.join(sorted({e.topic for e in b.graph.endpoints}))}", flush=True)
+                links = ros2.start_links(hosted, ros2.adapter_endpoint(mode, connect, listen, locators(session)),
+                                         world, ros_opts.distro)
+            elif any(v.ros2_link is not None for v in hosted.vehicles):
+                print("uwsimnet: the scene's <ros2Link>s are not started (they run under --ros2)", flush=True)
             if connect:
                 print(f"uwsimnet: connected to {', '.join(connect)}", flush=True)
             else:
@@ -344,6 +349,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 except Exception:  # noqa: BLE001 - a network left broken by an error: said, the run ends
                     log.exception("frames in flight could not be given their outcome")
             summary = {"t": net.sched.now, **clock.stats()}
+            summary["ros2_link"] = ros2.close_links(links)
             if ros is not None:
                 summary["ros2"] = dict(ros.bridge.problems.counts)
                 ros.close()
@@ -354,6 +360,8 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 summary["ingress_warn"] = broker.ingress_warn_s
             if reason == "duration" and duration is not None:
                 t_stop = min(t_stop, duration)
+            if summary["ros2_link"]:            # the links' counters in the trace too (docs/ros2-link.md)
+                extra["ros2_link"] = summary["ros2_link"]
             out.finish(net.end_record(reason, t=t_stop, **extra))     # the last batch, the end record last
             out.__exit__(None, None, None)
             session.close()
@@ -388,6 +396,8 @@ def _summary(analysis: Any, s: dict[str, Any], net: Any) -> None:
                   f" {s['late_mean'] * 1e6:.0f} us, max {s['late_max'] * 1e3:.2f} ms), {s['items']} messages"
                   f" ({s.get('items_here', 0)} run on arrival),"
                   f" {s['errors']} errors" + (f"; refused/ignored: {bad}" if bad else ""), soft_wrap=True)
+    for line in ros2.link_lines(s.get("ros2_link") or {}):    # <ros2Link>: per topic (docs/ros2-link.md)
+        console.print(line, markup=False, soft_wrap=True)
     # the edge (docs/runtime.md): ingress delay per modem, messages lost because a consumer did not keep up
     edge = s.get("edge") or {}
     rows = [(dev, e) for dev, e in edge.items() if not dev.startswith("*") and e.get("ingress_n")]

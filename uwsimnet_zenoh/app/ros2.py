@@ -8,7 +8,7 @@ import os
 import re
 from typing import TYPE_CHECKING, Any
 
-from ..errors import UserError
+from ..errors import UserError, UwsimnetError
 from ..ros2.distros import DEFAULT_DISTRO, DISTROS
 
 if TYPE_CHECKING:
@@ -26,7 +26,8 @@ ROS_CONNECT = [f"tcp/localhost:{ROS_PORT}"]
 def add_arguments(r: Any) -> None:
     g = r.add_argument_group("ROS 2 (realtime; needs the extra uwsimnet-zenoh[ros2])")
     g.add_argument("--ros2", action="store_true",
-                   help="be a ROS 2 participant on rmw_zenoh's wire: modem nodes and topics, poses from ROS")
+                   help="be a ROS 2 participant on rmw_zenoh's wire: modem nodes and topics, poses from ROS,"
+                        " the scene's <ros2Link>s")
     g.add_argument("--ros-domain", type=int, metavar="N", help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else 0)")
     g.add_argument("--ros-distro", choices=DISTROS,
                    help=f"the ROS 2 distro of the other nodes (default: $ROS_DISTRO, else {DEFAULT_DISTRO})")
@@ -140,18 +141,66 @@ def adapter_endpoint(mode: str, connect: list[str], listen: list[str], locs: lis
     raise UserError(f"--ros2: cannot tell where the run's router listens ({', '.join(listen) or 'nowhere'})")
 
 
-def run_link(connect: list[str], world: str, modem: str, topics: list[str], *, domain: int, namespace: str,
-             mtu: int, distro: str, duration: float | None) -> dict:
-    """`uwsimnet ros2-link`: join this robot's graph to the others through `modem` until Ctrl-C or
+def start_links(scene: Any, connect: list[str], world: str, distro: str) -> list[Any]:
+    """The links of the scene's vehicles (`<ros2Link>`), each started in this process as `uwsimnet ros2-link`
+    would run it, a client of the run's router; the caller closes them (`close_links`)."""
+    from uwsimnet_gli.world import GliError  # noqa: PLC0415 - a --ros2 run with links only
+
+    from ..bus.ros2_link import Ros2Link  # noqa: PLC0415
+
+    links: list[Any] = []
+    try:
+        for v in scene.vehicles:
+            spec = v.ros2_link
+            if spec is None or spec.modem not in {d.dccomms_id for d in v.devices}:   # not run here (--channels)
+                continue
+            try:
+                link = Ros2Link(connect, world, spec.modem, spec.topics, codec=codec(distro), domain=spec.domain,
+                                namespace=spec.namespace, mtu=spec.mtu)
+            except (GliError, UwsimnetError) as e:     # e.g. a type the distro's type store does not know
+                raise UserError(f"{scene.source}:{spec.line}: ros2Link of {v.name}: {e}") from None
+            links.append(link.__enter__())
+            print(f"uwsimnet: ros2Link of {v.name}: {spec.modem} carries {', '.join(r.name for r in spec.topics)}"
+                  f" of ROS domain {spec.domain}", flush=True)
+    except BaseException:
+        close_links(links)
+        raise
+    return links
+
+
+def close_links(links: list[Any]) -> dict[str, dict]:
+    """Close the links; their summaries by modem (for the run's summary)."""
+    out = {}
+    for link in links:
+        out[link.modem_id] = link.summary()
+        link.close()
+    return out
+
+
+def link_lines(summaries: dict[str, dict]) -> list[str]:
+    """The run summary's lines for the links: one per topic that moved anything, one for problems."""
+    lines = []
+    for modem, s in summaries.items():
+        for name, d in s["topics"].items():
+            if not (d["offered"] or d["received"] or d["dropped"]):
+                continue
+            lat = (f", latency mean {d['latency_mean_s'] * 1e3:.1f} ms max {d['latency_max_s'] * 1e3:.1f} ms"
+                   if d["received"] else "")
+            drops = ", ".join(f"{n} {why}" for why, n in d["dropped"].items())
+            lines.append(f"ros2 link {modem} {name}: offered {d['offered']}, sent {d['sent']} ({d['frames']} frames,"
+                         f" {d['bytes']} B), received {d['received']}{lat}" + (f"; dropped {drops}" if drops else ""))
+        if s["problems"]:
+            lines.append(f"ros2 link {modem} problems: " + ", ".join(f"{n} {k}" for k, n in s["problems"].items()))
+    return lines
+
+
+def run_link(connect: list[str], world: str, spec: Any, *, distro: str, duration: float | None) -> dict:
+    """`uwsimnet ros2-link`: join this robot's graph to the others through `spec.modem` until Ctrl-C or
     `duration` seconds; returns the link's summary (per-topic counters, latency, problems)."""
     import time  # noqa: PLC0415 - start-up time, as the module's other imports
 
     from ..bus.ros2_link import Ros2Link  # noqa: PLC0415
-    from ..ros2.link import LinkError, parse_rule  # noqa: PLC0415
 
-    rules = [parse_rule(t) for t in topics]
-    if not rules:
-        raise LinkError("ros2-link: give at least one --topic")
     try:
         from ..ros2.cdr import Codec  # noqa: PLC0415 - the extra uwsimnet-zenoh[ros2]
     except ImportError:
@@ -159,12 +208,13 @@ def run_link(connect: list[str], world: str, modem: str, topics: list[str], *, d
     from uwsimnet_gli.world import GliError  # noqa: PLC0415
 
     try:
-        link = Ros2Link(connect, world, modem, rules, codec=Codec(distro), domain=domain, namespace=namespace,
-                        mtu=mtu)
+        link = Ros2Link(connect, world, spec.modem, spec.topics, codec=Codec(distro), domain=spec.domain,
+                        namespace=spec.namespace, mtu=spec.mtu)
     except GliError as e:
         raise UserError(f"ros2-link: {e}") from None
     with link:
-        print(f"ros2-link: {modem} carries {len(rules)} topic(s) of ROS domain {domain}; running", flush=True)
+        print(f"ros2-link: {spec.modem} carries {len(spec.topics)} topic(s) of ROS domain {spec.domain}; running",
+              flush=True)
         end = None if duration is None else time.monotonic() + duration
         with contextlib.suppress(KeyboardInterrupt):
             while end is None or time.monotonic() < end:

@@ -20,8 +20,9 @@ from collections.abc import Sequence
 from typing import Any
 
 import zenoh
+import zenoh.ext as zext
 from uwsimnet_gli.modem import Modem
-from uwsimnet_gli.world import World
+from uwsimnet_gli.world import World, load_config
 
 from ..ros2 import link as L
 from ..ros2 import wire as rw
@@ -57,27 +58,36 @@ class Ros2Link:
         self._stop = threading.Event()
         self._entities: list[Any] = []
         self._tokens: list[Any] = []
-        self.world = World(world, connect=list(connect))
+        conf = load_config(None, list(connect))
+        # as rmw_zenoh's sessions: a TRANSIENT_LOCAL republisher (AdvancedPublisher's cache) needs timestamps
+        conf.insert_json5("timestamping/enabled", "true")
+        self.world = World(world, config=conf)
         try:
             s = self.world.session
             self.graph = Graph(domain, str(s.zid()), codec)
             self.subs: dict[str, int] = {}
             self.pubs: dict[int, tuple[Endpoint, Any]] = {}
+            self._pub_tokens: dict[int, Any] = {}
+            self._namespace = namespace
             for i, r in enumerate(self.rules):
                 if r.direction in ("out", "both"):
-                    ep = self.graph.add("MS", NODE, namespace, r.name, r.type, rw.QoS(depth=r.depth))
+                    # best effort, volatile: by ROS's QoS rules a subscription any publisher's QoS is compatible with
+                    ep = self.graph.add("MS", NODE, namespace, r.name, r.type,
+                                        rw.QoS(reliability=rw.BEST_EFFORT, depth=r.depth))
                     self.subs[ep.topic_key] = i
                     # REMOTE: never hear our own republications (on a 'both' topic they would echo back over the water)
                     self._entities.append(s.declare_subscriber(ep.match_key, self._on_ros,
                                                                allowed_origin=zenoh.Locality.REMOTE))
-                if r.direction in ("in", "both"):
-                    ep = self.graph.add("MP", NODE, namespace, r.name, r.type, rw.QoS(depth=r.depth))
-                    self.pubs[i] = (ep, s.declare_publisher(ep.key, reliability=zenoh.Reliability.RELIABLE))
-                    self._entities.append(self.pubs[i][1])
             self._diag = self.graph.add("MP", NODE, namespace, "/diagnostics", DIAG_TYPE, rw.QoS(depth=10))
             self._diag_pub = s.declare_publisher(self._diag.key, reliability=zenoh.Reliability.RELIABLE)
             self._entities.append(self._diag_pub)
             self._tokens = [s.liveliness().declare_token(t) for t in self.graph.tokens()]
+            for i, r in enumerate(self.rules):
+                if r.direction in ("in", "both"):   # the sender's QoS replaces this one once announced
+                    self._declare_pub(i, rw.QoS(depth=r.depth))
+            # the robot's publishers (their tokens carry their QoS): the QoS the far side republishes with
+            self._entities.append(s.liveliness().declare_subscriber(f"{rw.ADMIN_SPACE}/{domain}/**", self._on_token,
+                                                                    history=True))
             self.modem = Modem(self.world, modem, on_receive=self._on_frame, on_status=self._on_status)
         except BaseException:
             self.close()
@@ -99,19 +109,51 @@ class Ros2Link:
         th = getattr(self, "_thread", None)
         if th is not None and th.is_alive():
             th.join(5.0)
-        for e in (*self._tokens, *self._entities):
+        for e in (*self._tokens, *self._pub_tokens.values(), *self._entities):
             with contextlib.suppress(Exception):
                 e.undeclare()
         self._tokens, self._entities = [], []
+        self._pub_tokens = {}
         if hasattr(self, "modem"):
             self.modem.close()
         self.world.close()
+
+    def _declare_pub(self, i: int, qos: rw.QoS) -> None:
+        """(Re)declare topic i's publisher and its token with `qos` (a new entity: rmw_zenoh's token names
+        its QoS, so a QoS change is a new publisher in the graph). TRANSIENT_LOCAL: a cache of `depth`
+        samples for late joiners, as rmw_zenoh's AdvancedPublisher."""
+        s, r = self.world.session, self.rules[i]
+        ep = self.graph.add("MP", NODE, self._namespace, r.name, r.type, qos)
+        try:
+            if qos.durability == rw.TRANSIENT_LOCAL:
+                pub = zext.declare_advanced_publisher(s, ep.key, cache=zext.CacheConfig(max(1, qos.depth)),
+                                                      publisher_detection=True)
+            else:
+                pub = s.declare_publisher(ep.key, reliability=zenoh.Reliability.RELIABLE
+                                          if qos.reliability == rw.RELIABLE else zenoh.Reliability.BEST_EFFORT)
+        except zenoh.ZError:
+            self.graph.endpoints.remove(ep)     # the old publisher stays (the caller counts the problem)
+            raise
+        old = self.pubs.pop(i, None)
+        if old is not None:                     # the new one is in place: the old one leaves the graph
+            ep.seq = old[0].seq
+            with contextlib.suppress(Exception):
+                self._pub_tokens.pop(i).undeclare()
+            with contextlib.suppress(Exception):
+                old[1].undeclare()
+            self.graph.endpoints.remove(old[0])
+        self.pubs[i] = (ep, pub)
+        self._pub_tokens[i] = s.liveliness().declare_token(ep.token)
 
     # -- callbacks: enqueue only ------------------------------------------------------------------
     def _on_ros(self, sample: zenoh.Sample) -> None:
         att = sample.attachment
         self._q.put(("ros", str(sample.key_expr), sample.payload.to_bytes(), None if att is None else att.to_bytes(),
                      time.time_ns()))
+
+    def _on_token(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._q.put(("tok", str(sample.key_expr), b"", None, 0))
 
     def _on_frame(self, frame: Any) -> None:
         self._q.put(("rx", frame.src, bytes(frame.data), None, time.time_ns()))
@@ -161,6 +203,8 @@ class Ros2Link:
     def _handle(self, item: tuple) -> None:
         kind, a, payload, att, now_ns = item
         now = now_ns / 1e9
+        if kind == "tok":
+            return self._learn_qos(a)
         if kind == "ros":
             topic_key = a.rsplit("/", 2)[0]
             i = self.subs.get(topic_key)
@@ -179,6 +223,8 @@ class Ros2Link:
             if why is not None:
                 self.problem(why, self.rules[i].name)
             return
+        if L.is_control(payload):
+            return self._announced(a, payload)
         try:
             done = self.reasm.push(a, payload, now)
         except L.LinkError as e:
@@ -197,6 +243,33 @@ class Ros2Link:
         st.latency_max = max(st.latency_max, lat)
         pub.put(cdr, attachment=ep.attachment(src_ns))
 
+    def _learn_qos(self, key: str) -> None:
+        """A publisher of a carried topic on this robot's graph (not the link's own): its QoS goes across."""
+        tok = rw.parse_token(key)
+        if tok is None or tok.kind != "MP" or tok.zid == self.graph.zid or tok.qos is None:
+            return
+        i = self.sender.index.get(tok.topic or "")
+        if i is None or self.rules[i].direction == "in":
+            return
+        if tok.dds_type != rw.dds_type(self.rules[i].type):
+            return self.problem("type", f"publisher of {tok.topic} has type {tok.dds_type}")
+        with self._cond:
+            if self.sender.set_qos(self.rules[i].name, tok.qos):
+                log.info("ros2-link: %s: the publisher's QoS %s goes across", tok.topic, tok.qos.keyexpr())
+
+    def _announced(self, src: int, frame: bytes) -> None:
+        try:
+            i, qos = L.decode_qos(frame)
+        except L.LinkError as e:
+            return self.problem("malformed_frame", f"from {src}: {e}")
+        if i not in self.pubs:
+            return self.problem("unknown_topic", f"QoS of topic index {i} from {src}")
+        if self.pubs[i][0].qos != qos:
+            try:
+                self._declare_pub(i, qos)
+            except zenoh.ZError as e:
+                self.problem("qos", f"{self.rules[i].name}: cannot republish with {qos.keyexpr()}: {e}")
+
     def publish_diagnostics(self) -> None:
         now_ns = time.time_ns()
         fields = {"header": header(now_ns / 1e9, ""), "status": L.diagnostic_status(self.summary(), self.modem_id)}
@@ -210,5 +283,11 @@ class Ros2Link:
             for (t, reason), n in self.reasm.drops.items():
                 if t == i:
                     d["dropped"][f"rx_{reason}"] = n
+            learned = self.sender.qos[i]
+            if learned is not None:                 # the publisher's on this graph (sent across)
+                d["qos_out"] = learned.keyexpr()
+            if i in self.pubs:                      # what the link republishes with on this graph
+                d["qos_in"] = self.pubs[i][0].qos.keyexpr()
             topics[r.name] = d
-        return {"topics": topics, "problems": dict(sorted(self.problems.items()))}
+        return {"topics": topics, "qos_announcements": self.sender.control_frames,
+                "problems": dict(sorted(self.problems.items()))}

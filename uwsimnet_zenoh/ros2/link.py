@@ -25,85 +25,13 @@ import zlib
 from collections import deque
 from dataclasses import dataclass, field
 
-from ..errors import UwsimnetError
+# the settings are the scene's model (one for <ros2Link> and --topic); re-exported for the link's users
+from ..scene.ros2_link import BROADCAST, MAX_TOPICS, LinkError, TopicRule, check_rules, parse_rule  # noqa: F401
+from . import wire as rw
 
-BROADCAST = 255
-MAX_TOPICS = 64
 MAX_FRAGMENTS = 256
 _STAMP = struct.Struct("<I")
 _WRAP = 1 << 32
-DIRECTIONS = ("out", "in", "both")
-POLICIES = ("fifo", "keep_last")
-
-
-class LinkError(UwsimnetError, ValueError):
-    """A link setting this module cannot accept (one line, for the CLI and the scene reader)."""
-
-
-@dataclass(frozen=True)
-class TopicRule:
-    """One topic allowed across the water. `priority`: 0 is served first. `rate`: at most that many
-    messages per second are accepted (0 = no limit). `budget`: on-air bytes per second (token bucket,
-    burst of one second; 0 = no limit). `depth`: keep-last N for state, FIFO length for commands."""
-
-    name: str
-    type: str
-    direction: str = "both"
-    dst: int = BROADCAST
-    priority: int = 5
-    policy: str = "fifo"
-    depth: int = 10
-    rate: float = 0.0
-    budget: int = 0
-    compress: bool = True
-
-    def __post_init__(self) -> None:
-        if not self.name.startswith("/"):
-            raise LinkError(f"topic {self.name!r}: a fully qualified name starts with '/'")
-        if self.type.count("/") != 2:
-            raise LinkError(f"topic {self.name}: type {self.type!r} is not pkg/msg/Name")
-        if self.direction not in DIRECTIONS:
-            raise LinkError(f"topic {self.name}: direction {self.direction!r} (one of {', '.join(DIRECTIONS)})")
-        if self.policy not in POLICIES:
-            raise LinkError(f"topic {self.name}: policy {self.policy!r} (one of {', '.join(POLICIES)})")
-        if not 0 <= self.dst <= 255:
-            raise LinkError(f"topic {self.name}: dst {self.dst} is not an address 0..255")
-        if self.depth < 1 or self.rate < 0 or self.budget < 0 or self.priority < 0:
-            raise LinkError(f"topic {self.name}: depth >= 1, rate, budget and priority >= 0")
-
-
-_RULE_KEYS = {"topic": "name", "type": "type", "dir": "direction", "dst": "dst", "prio": "priority",
-              "policy": "policy", "depth": "depth", "rate": "rate", "budget": "budget", "compress": "compress"}
-_INTS = {"dst", "priority", "depth", "budget"}
-
-
-def parse_rule(text: str) -> TopicRule:
-    """The CLI form `topic=/cmd_vel,type=geometry_msgs/msg/Twist,dir=out,dst=2,prio=0,policy=fifo,...`."""
-    kw: dict[str, object] = {}
-    for part in filter(None, (p.strip() for p in text.split(","))):
-        key, eq, value = part.partition("=")
-        if not eq or key not in _RULE_KEYS:
-            raise LinkError(f"link topic {text!r}: {part!r} is not one of {', '.join(f'{k}=' for k in _RULE_KEYS)}")
-        name = _RULE_KEYS[key]
-        try:
-            kw[name] = (int(value) if name in _INTS else float(value) if name == "rate"
-                        else value in ("1", "true", "yes") if name == "compress" else value)
-        except ValueError:
-            raise LinkError(f"link topic {text!r}: {key}={value!r} is not a number") from None
-    if "name" not in kw or "type" not in kw:
-        raise LinkError(f"link topic {text!r}: topic= and type= are required")
-    return TopicRule(**kw)  # type: ignore[arg-type]
-
-
-def check_rules(rules: list[TopicRule]) -> list[TopicRule]:
-    """The topic index on air is the position in this list: both ends must list the same topics in order."""
-    if len(rules) > MAX_TOPICS:
-        raise LinkError(f"a link carries at most {MAX_TOPICS} topics ({len(rules)} given)")
-    names = [r.name for r in rules]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:
-        raise LinkError(f"topic listed twice on the link: {', '.join(sorted(dup))}")
-    return rules
 
 
 # == header ===========================================================================================
@@ -164,6 +92,36 @@ def unwrap_stamp(stamp_us: int, now_ns: int) -> int:
     base = now_us - (now_us % _WRAP) + stamp_us
     best = min((base - _WRAP, base, base + _WRAP), key=lambda c: abs(c - now_us))
     return best * 1000
+
+
+# == the link's own frames: topic index 63 ===========================================================
+
+CONTROL = MAX_TOPICS
+QOS_ANNOUNCE = 1
+QOS_PERIOD_S = 30.0
+"""A topic's QoS is announced before its first message and again before a message every this often (a lost
+announcement is made good)."""
+
+
+def encode_qos(topic: int, qos: rw.QoS) -> bytes:
+    """`3f 01 <topic> <rel | dur << 2 | hist << 4> <depth u16>`: the QoS of the publisher on the sender's graph."""
+    return bytes([CONTROL, QOS_ANNOUNCE, topic, qos.reliability | qos.durability << 2 | qos.history << 4]) \
+        + struct.pack("<H", min(qos.depth, 0xFFFF))
+
+
+def is_control(frame: bytes) -> bool:
+    return len(frame) >= 2 and frame[0] == CONTROL
+
+
+def decode_qos(frame: bytes) -> tuple[int, rw.QoS]:
+    """(topic index, QoS) of an announcement; LinkError for anything else."""
+    if len(frame) != 6 or frame[0] != CONTROL or frame[1] != QOS_ANNOUNCE:
+        raise LinkError("not a QoS announcement")
+    b = frame[3]
+    try:
+        return frame[2], rw.QoS(b & 3, b >> 2 & 3, b >> 4 & 3, struct.unpack_from("<H", frame, 4)[0])
+    except rw.Ros2WireError as e:
+        raise LinkError(f"QoS announcement: {e.detail}") from None
 
 
 # == fragmentation ====================================================================================
@@ -319,6 +277,20 @@ class Sender:
         self._last_accept = [-math.inf] * len(rules)
         self._tokens = [float(r.budget) for r in rules]
         self._token_t = [0.0] * len(rules)
+        self.qos: list[rw.QoS | None] = [None] * len(rules)
+        self._announced = [-math.inf] * len(rules)
+        self._control: deque[tuple[int, bytes]] = deque()
+        self.control_frames = 0
+
+    def set_qos(self, topic: str, qos: rw.QoS) -> bool:
+        """The QoS of the topic's publisher on this robot's graph (from its token); True when it changed
+        (announced again before the next message)."""
+        i = self.index.get(topic)
+        if i is None or self.qos[i] == qos:
+            return False
+        self.qos[i] = qos
+        self._announced[i] = -math.inf
+        return True
 
     def offer(self, topic: str, cdr: bytes, stamp_ns: int, now: float) -> str | None:
         """Queue one sample; None when queued, else the reason it was dropped (also counted)."""
@@ -355,14 +327,22 @@ class Sender:
             st.drop("superseded")
         self._seq[i] = (self._seq[i] + 1) & 0xFF
         self._last_accept[i] = now
+        qos = self.qos[i]
+        if qos is not None and now - self._announced[i] >= QOS_PERIOD_S:
+            self._control.append((r.dst, encode_qos(i, qos)))
+            self._announced[i] = now
         q.append(_Message(deque(frames)))
         return None
 
     def pending(self) -> int:
-        return sum(len(m.frames) for q in self._queues for m in q)
+        return len(self._control) + sum(len(m.frames) for q in self._queues for m in q)
 
     def next_frame(self) -> tuple[int, bytes] | None:
-        """(destination address, frame) of the most urgent waiting frame, or None."""
+        """(destination address, frame) of the most urgent waiting frame, or None. QoS announcements go
+        first: each precedes the message it was queued with."""
+        if self._control:
+            self.control_frames += 1
+            return self._control.popleft()
         best = None
         for i, q in enumerate(self._queues):
             if q and (best is None or self.rules[i].priority < self.rules[best].priority):
@@ -389,6 +369,7 @@ def diagnostic_status(summary: dict, modem: str) -> list[dict]:
         values = [{"key": k, "value": str(d[k])} for k in ("offered", "sent", "frames", "bytes", "received")]
         values += [{"key": f"dropped_{k}", "value": str(n)} for k, n in d["dropped"].items()]
         values += [{"key": k, "value": f"{d[k]:.6f}"} for k in ("latency_mean_s", "latency_max_s") if d[k] is not None]
+        values += [{"key": k, "value": d[k]} for k in ("qos_out", "qos_in") if k in d]
         out.append({"level": 1 if d["dropped"] else 0, "name": f"uwsimnet_link/{modem}{name}",
                     "message": "dropped messages" if d["dropped"] else "ok", "hardware_id": modem, "values": values})
     bad = summary["problems"]

@@ -97,7 +97,7 @@ class LegacyVocabulary(XmlReader):
 
     def vehicle(self, el: _El) -> tuple[Vehicle, _El, list[dict[str, _El]]]:
         k = self.kids(el, single=("name", "position", "geoPosition", "trajectory", "poseSource", "poseRate",
-                                  "rosPose"),
+                                  "rosPose", "ros2Link"),
                       repeat=("CustomCommsDevice", "AcousticCommsDevice"), ignore=_VEHICLE_IGNORED)
         f = _Fields()
         name_el = self.need(k, "name")
@@ -131,6 +131,9 @@ class LegacyVocabulary(XmlReader):
                 devices.append(got[0])
                 dev_els.append(got[1])
         f.set("devices", tuple(devices), "CustomCommsDevice", el)
+        if (e := k.get("ros2Link")) is not None:
+            spec, self.link_topics[f.values["name"]] = self.ros2_link(e, devices)  # type: ignore[attr-defined]
+            f.set("ros2_link", spec, "ros2Link", e)
         return self.build(Vehicle, el, f), name_el, dev_els
 
     def position(self, el: _El) -> tuple[float, float, float]:

@@ -152,6 +152,9 @@ class _Reader(LegacyVocabulary, AcousticVocabulary, NativeVocabulary, Environmen
                 listeners[key] = (d.dccomms_id, els["mac"].sourceline or 0)
             vehicles.append(v)
 
+        links = [(v, self.link_topics[v.name]) for v in vehicles if v.ros2_link is not None]
+        if links:
+            self.check_ros2_links(links, {d.address for d, _ in devices.values()})
         for d, els in devices.values():
             for tag, ch_id in (("txChannelId", d.tx_channel), ("rxChannelId", d.rx_channel)):
                 if ch_id not in channel_line:

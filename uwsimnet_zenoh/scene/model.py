@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from ..kernel.frame import BROADCAST
+from .ros2_link import LinkSpec
 
 if TYPE_CHECKING:
     from ..phy.acoustic import AcousticChannelParams
@@ -274,6 +275,7 @@ class Vehicle(_Model):
     pose_rate_hz: float = Field(default=10.0, gt=0)
     ros_pose: str | None = None           # under --ros2, for poseSource zenoh: odom:TOPIC | pose:TOPIC | tf:FRAME
     devices: tuple[Device, ...] = ()
+    ros2_link: LinkSpec | None = None     # <ros2Link>: this robot's ROS 2 topics across its modem (--ros2)
 
     @field_validator("trajectory")
     @classmethod

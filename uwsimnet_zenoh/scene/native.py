@@ -1,4 +1,5 @@
-"""The native extensions: `<flow>` (traffic sources) and their checks against the scene."""
+"""The native extensions: `<flow>` (traffic sources), a vehicle's `<ros2Link>`, and their checks against the
+scene."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ from .model import (
     Device,
     Flow,
     Simulation,
+    Vehicle,
 )
-from .xml import XmlReader, _El, _Fields
+from .ros2_link import RULE_KEYS, LinkError, LinkSpec, TopicRule, rule_from_fields
+from .xml import SceneError, XmlReader, _El, _Fields, _is_element
 
 MIN_FLOW_INTERVAL = 1e-6
 """s: a flow's (mean) interval below this is refused: the run could not finish (at 1e-12 s simulated
@@ -25,7 +28,92 @@ Ctrl-C, is bounded by this alone)."""
 
 
 class NativeVocabulary(XmlReader):
-    """Mixin: flows."""
+    """Mixin: flows, ROS 2 links."""
+
+    # --- ROS 2 links (docs/ros2-link.md) -------------------------------------------------------------
+
+    def ros2_link(self, el: _El, devices: Sequence[Device]) -> tuple[LinkSpec, list[_El]]:
+        """`<ros2Link>`: `<modem>` (a dccommsId of the vehicle; may be left out when it has one device),
+        `<rosDomain>`, `<mtu>`, `<namespace>` and one `<topic .../>` per topic, whose attributes are the
+        keys of `--topic` (`name` for `topic`). Also the topic elements, for the scene-wide checks."""
+        k = self.kids(el, single=("modem", "rosDomain", "mtu", "namespace"), repeat=("topic",))
+        ids = [d.dccomms_id for d in devices]
+        if (e := k.get("modem")) is not None:
+            modem = self.string(e)
+            if modem not in ids:
+                self.fail(e, f"ros2Link/modem: {modem!r} is not a device of this vehicle"
+                             f" ({', '.join(ids) or 'it has none'})")
+        elif len(ids) == 1:
+            modem = ids[0]
+        else:
+            self.fail(el, f"ros2Link: missing <modem> (the vehicle has {len(ids)} devices: name one)")
+        domain = self.integer(self.need(k, "rosDomain"))[0]
+        mtu_el = k.get("mtu")
+        mtu = self.integer(mtu_el)[0] if mtu_el is not None else 64
+        dev = devices[ids.index(modem)]
+        if mtu_el is not None and mtu > dev.max_frame_bytes:
+            self.fail(mtu_el, f"ros2Link/mtu: {mtu} is larger than {modem}'s maxFrameBytes {dev.max_frame_bytes}")
+        namespace = self.string(e) if (e := k.get("namespace")) is not None else "/"
+        topic_els = k.all("topic")
+        rules = [self.link_topic(t) for t in topic_els]
+        seen: dict[str, int] = {}
+        for r, t in zip(rules, topic_els, strict=True):
+            if r.name in seen:
+                self.fail(t, f"topic {r.name}: listed twice on the link (first at line {seen[r.name]})")
+            seen[r.name] = t.sourceline or 0
+        try:
+            spec = LinkSpec(modem, domain, tuple(rules), mtu=mtu, namespace=namespace, line=el.sourceline or 0)
+        except LinkError as e:
+            where = {"ROS domain": k.get("rosDomain"), "mtu": mtu_el, "namespace": k.get("namespace")}
+            self.fail(next((w for p, w in where.items() if str(e).startswith(p) and w is not None), el),
+                      f"ros2Link: {e}")
+        return spec, topic_els
+
+    def link_topic(self, el: _El) -> TopicRule:
+        keys = {("name" if k == "topic" else k) for k in RULE_KEYS}
+        self._no_attributes(el, keys)
+        if any(_is_element(c) for c in el) or (el.text or "").strip():
+            self.fail(el, "topic: its settings are attributes (name=, type=, dir=, ...), it holds nothing")
+        missing = [a for a in ("name", "type") if a not in el.attrib]
+        if missing:
+            self.fail(el, f"topic: missing {' and '.join(missing)}= (both are required)")
+        fields = {("topic" if k == "name" else k): v for k, v in el.attrib.items()}
+        try:
+            return rule_from_fields(fields, "topic")
+        except LinkError as e:
+            self.fail(el, str(e))
+
+    def check_ros2_links(self, vehicles: Sequence[tuple[Vehicle, list[_El]]], addresses: set[int]) -> None:
+        """Across the scene: one ROS domain per robot (its graph is its own), the same topics in the same
+        order on every link (the topic index on air is the position), destinations that exist."""
+        domains: dict[int, tuple[str, int]] = {}
+        first: tuple[Vehicle, list[_El]] | None = None
+        for v, topic_els in vehicles:
+            spec = v.ros2_link
+            assert spec is not None
+            if spec.domain in domains:
+                other, line = domains[spec.domain]
+                raise SceneError(self.source, spec.line, f"ros2Link: rosDomain {spec.domain} is also {other}'s"
+                                 f" (line {line}): each robot's graph needs its own domain")
+            domains[spec.domain] = (v.name, spec.line)
+            for r, t in zip(spec.topics, topic_els, strict=True):
+                if r.dst != BROADCAST and r.dst not in addresses:
+                    self.fail(t, f"topic {r.name}: dst {r.dst}: no device of the scene has that mac"
+                                 " (255 = broadcast)")
+            if first is None:
+                first = (v, topic_els)
+                continue
+            ref = first[0].ros2_link
+            assert ref is not None
+            mine, theirs = spec.signature(), ref.signature()
+            for i, (a, t) in enumerate(zip(mine, topic_els, strict=True)):
+                if i >= len(theirs) or a != theirs[i]:
+                    want = f"{theirs[i][0]} ({theirs[i][1]})" if i < len(theirs) else "nothing"
+                    self.fail(t, f"topic {a[0]}: position {i + 1} on {first[0].name}'s link (line {ref.line}) is"
+                                 f" {want}: every link lists the same topics in the same order (the index on air)")
+            if len(mine) < len(theirs):
+                raise SceneError(self.source, spec.line, f"ros2Link: {len(mine)} topics, {first[0].name}'s link"
+                                 f" (line {ref.line}) has {len(theirs)}: every link lists the same topics")
 
     # --- flows ---------------------------------------------------------------------------------------
 

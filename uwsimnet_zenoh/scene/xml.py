@@ -173,6 +173,8 @@ class XmlReader:
         self._warnings: list[tuple[int, int, str]] = []
         self.disabled: dict[str, int] = {}
         self.modelled: set[int] = set()
+        self.link_topics: dict[str, list[_El]] = {}
+        """A vehicle's `<ros2Link>` topic elements, by vehicle name (for the scene-wide checks)."""
         """Ids of the channels that name a `<channelModel>` (their devices' rateErrorModel is not used)."""
 
     # --- reporting -----------------------------------------------------------------------------------
