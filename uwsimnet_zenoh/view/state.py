@@ -5,7 +5,7 @@ The page (static/view.js) gets one document, then (live) a stream of updates:
 
     document  {mode, title, t0, t1, positions, vehicles, devices, poses, frames, events, clock, control}
     updates   {"type": "pose", "vehicle", "s": [t, x, y, z]}       a pose sample
-              {"type": "event", "e": [t, dev, ev, reason, fifo, enq, tx, rx, drop]}
+              {"type": "event", "e": [t, dev, ev, reason, fifo, enq, tx, rx, drop, src, seq, kind]}
               {"type": "frame", "f": AirFrame.to_dict()}           created at tx, sent again per outcome
               {"type": "clock", "clock": {t, paused, speed, epoch}}
               {"type": "devices", "devices": {...}, "vehicles": {...}}
@@ -126,7 +126,8 @@ class Counters:
         c[("enq", "tx", "rx", "drop").index(rec["ev"])] += 1
         if isinstance(rec.get("fifo"), int):
             self._fifo[dev] = rec["fifo"]
-        return [rec["t"], dev, rec["ev"], rec.get("reason"), self._fifo.get(dev), *c]
+        return [rec["t"], dev, rec["ev"], rec.get("reason"), self._fifo.get(dev), *c, rec.get("src"), rec.get("seq"),
+                rec.get("kind") or "data"]
 
 
 def replay_document(meta: dict[str, Any], events: Iterable[dict[str, Any]], scene: Scene | None = None,
