@@ -184,7 +184,8 @@ class LiveSource:
                 modems[m["id"]] = {"vehicle": m.get("vehicle"), "address": m.get("address"),
                                    "tx_channel": m.get("tx_channel"), "rx_channel": m.get("rx_channel"),
                                    "fifo_capacity": m.get("fifo_capacity"),
-                                   "max_distance": cfg.get("max_distance"), "kind": m.get("kind")}
+                                   "max_distance": cfg.get("max_distance"), "kind": m.get("kind"),
+                                   "mac": m.get("mac"), "bitrate": m.get("bitrate")}
         if modems:
             self.state.merge_state({"modems": modems})
 

@@ -287,7 +287,8 @@ class LiveState:
                 if not isinstance(m, dict):
                     continue
                 d = self.devices.setdefault(dev, {"per": None, "fifo_capacity": None})
-                for k in ("vehicle", "address", "tx_channel", "rx_channel", "fifo_capacity", "max_distance"):
+                for k in ("vehicle", "address", "tx_channel", "rx_channel", "fifo_capacity", "max_distance", "mac",
+                          "bitrate"):
                     if m.get(k) is not None and d.get(k) != m[k]:
                         d[k] = m[k]
                         changed = True

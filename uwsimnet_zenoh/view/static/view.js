@@ -538,6 +538,7 @@
     if (document.activeElement !== sl || S.playing) sl.value = T;
   }
   function tick() {
+    requestAnimationFrame(tick);                    // first: a frame that throws (bad data) never stops the page
     const now = performance.now() / 1000;
     const dt = S.lastWall == null ? 0 : now - S.lastWall;
     S.lastWall = now;
@@ -561,7 +562,6 @@
       draw();
       panels(S.T);
     }
-    requestAnimationFrame(tick);
   }
 
   // -- wiring --------------------------------------------------------------------------------------
