@@ -17,7 +17,7 @@ import pytest
 from uwsimnet_zenoh.app.virtual import load_scene_file, run_virtual
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_view import UWSIMNET, Proc, needs_browser  # noqa: E402
+from test_view import UWSIMNET, Proc, needs_browser, shot  # noqa: E402
 from test_view import browser as browser  # noqa: E402 - the module's browser fixture
 
 PER_EXPR = "min(1, m / 800)"
@@ -203,3 +203,58 @@ def test_links_are_coloured_by_the_modelled_per_or_the_measured_loss(page, run):
     outs = [r for r in run["recs"] if r["dev"] == "alpha-m" and r["src"] == 4 and r["ev"] in ("rx", "drop")]
     prop = sum(r.get("reason") == "prop" for r in outs) / sum(r.get("reason") in ("prop", None) for r in outs)
     assert prop == pytest.approx(0.75, abs=0.12)
+
+
+SHADOW = Path(__file__).resolve().parent / "data" / "ocean-shadow.xml"
+LINK_PIXEL = """const m = document.getElementById('map'), c = m.getContext('2d');
+const a = uwsimnetView.pixel('buoy'), b = uwsimnetView.pixel('auv'), L = Math.hypot(b[0] - a[0], b[1] - a[1]);
+const nx = -(b[1] - a[1]) / L * 2, ny = (b[0] - a[0]) / L * 2, out = [];
+for (const f of [0.3, 0.4, 0.6, 0.7]) {
+  const x = Math.round(a[0] + (b[0] - a[0]) * f + nx), y = Math.round(a[1] + (b[1] - a[1]) * f + ny);
+  const d = c.getImageData(x, y, 1, 1).data;
+  out.push([d[0], d[1], d[2]]);
+}
+return out;"""
+
+
+@needs_browser
+def test_a_bellhop_shadow_zone_colours_the_link_red_until_the_dive(browser, tmp_path, monkeypatch):  # noqa: F811
+    """tests/data/ocean-shadow.xml with the grid Bellhop made (shipped): the AUV 1000 m away at 20 m depth is in
+    the thermocline's shadow until t = 60 s, then dives to 100 m by t = 90 s.  The link's colour is the
+    channel model's PER at both ends' positions (not a range curve: the range never changes), and the trace
+    of the run agrees: every frame lost while shallow, every frame delivered once deep."""
+    monkeypatch.setenv("UWSIMNET_CACHE", str(SHADOW.parent))
+    monkeypatch.setenv("UWSIMNET_BELLHOP", "/nonexistent/bellhop")    # the shipped grid, not the program
+    trace = tmp_path / "shadow.jsonl"
+    run_virtual(load_scene_file(str(SHADOW)), seed=3, duration=200.0, trace_path=trace, progress=False)
+    recs = [r for r in map(json.loads, trace.read_text().splitlines()) if r["ev"] in ("enq", "tx", "rx", "drop")]
+    tx = {r["seq"]: r["t"] for r in recs if r["ev"] == "tx" and r["dev"] == "buoy-modem"}
+    at_auv = {tx[r["seq"]]: r.get("reason", "rx") for r in recs if r["dev"] == "auv-modem" and r["ev"] != "enq"
+              and r["src"] == 1}
+    assert {o for t, o in at_auv.items() if t < 60} == {"prop"} and {o for t, o in at_auv.items() if t > 90} == {"rx"}
+    view = Proc([*UWSIMNET, "view", str(trace), "--scene", str(SHADOW), "--port", "0"], tmp_path / "view.log")
+    try:
+        url = view.wait_for("http://").split("uwsimnet view: ")[1].split()[0]
+        browser.get(url)
+        browser.wait("return window.uwsimnetView && uwsimnetView.ready", what="page ready")
+        assert browser.js("return document.getElementById('linkby').value") == "model"
+        seen = {}
+        for t in (30.0, 150.0):
+            browser.js(f"uwsimnetView.setTime({t})")
+            browser.wait(f"return document.getElementById('clock').textContent === 't = {t:.3f} s'", what=f"t {t}")
+            seen[t] = browser.js("return uwsimnetView.link('buoy-modem', 'auv-modem')")
+            px = browser.js(LINK_PIXEL)
+            red = sum(p[0] > p[1] + 60 for p in px)
+            green = sum(p[1] > p[0] + 60 for p in px)
+            assert (red, green) == ((len(px), 0) if t < 60 else (0, len(px))), (t, px)
+            if t < 60:
+                shot(browser, tmp_path, "view-shadow.png")
+        assert seen[30.0]["value"] == pytest.approx(1.0, abs=1e-6)
+        assert seen[150.0]["value"] == pytest.approx(0.0, abs=1e-6)
+        # the loss measured in the trace says the same over the last 20 frames (30 s before and after)
+        for t, want in ((58.0, 1.0), (199.0, 0.0)):
+            browser.js(f"uwsimnetView.setTime({t})")
+            m = browser.js("return uwsimnetView.link('buoy-modem', 'auv-modem').measured")
+            assert m["loss"] == want and m["n"] >= 20, (t, m)
+    finally:
+        assert view.stop() == 0, view.text()

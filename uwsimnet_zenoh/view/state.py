@@ -34,6 +34,11 @@ from ..scene.model import Scene
 
 PER_POINTS = 48
 """Samples of each transmitter's PER-vs-distance curve (the page interpolates linearly)."""
+LINK_STEPS = 20
+"""Geometry models: each interval between two waypoint times is cut into this many steps, at whose ends the
+model is asked for a link's PER (the page interpolates linearly in time)."""
+LINK_SAMPLES = 400
+"""At most this many samples per link (evenly spread over the run when the waypoints ask for more)."""
 DEFAULT_LINK_SIZE = 64
 """Bytes on air of the frame the link colours are computed for when nothing better is known."""
 LIVE_FRAMES = 4000
@@ -76,16 +81,65 @@ def scene_parts(scene: Scene, link_size: int | None = None) -> dict[str, Any]:
     devices: dict[str, Any] = {}
     for v, d in scene.devices():
         m = net.modems[d.dccomms_id]
-        top = min(d.max_distance, span)
-        ds = np.linspace(max(d.min_distance, 0.0), max(top, d.min_distance + 1e-6), PER_POINTS)
-        per = np.asarray(m.error.per(ds, size + d.header_bytes), dtype=float).reshape(-1)
+        links = None
+        if getattr(m.error, "by_distance", True):
+            top = min(d.max_distance, span)
+            ds = np.linspace(max(d.min_distance, 0.0), max(top, d.min_distance + 1e-6), PER_POINTS)
+            per = np.asarray(m.error.per(ds, size + d.header_bytes), dtype=float).reshape(-1)
+            curve = [[round(float(a), 3), round(float(b), 6)] for a, b in zip(ds, per, strict=True)]
+        else:                   # the loss depends on where both ends are (depths, bathymetry): no curve of range
+            curve = None
+            links = geometry_links(scene, v, d, m.error, size + d.header_bytes, poses)
         devices[d.dccomms_id] = {
             "vehicle": v.name, "address": d.address, "tx_channel": d.tx_channel, "rx_channel": d.rx_channel,
             "bitrate": m.bitrate, "fifo_capacity": d.tx_fifo_bytes, "mac": d.mac.name, "kind": "sim",
             "min_distance": d.min_distance, "max_distance": _f(d.max_distance),
-            "per": [[round(float(a), 3), round(float(b), 6)] for a, b in zip(ds, per, strict=True)],
-            "link_size": size + d.header_bytes}
+            "per": curve, "links": links, "link_size": size + d.header_bytes}
     return {"vehicles": vehicles, "devices": devices, "poses": poses, "positions": True}
+
+
+def _at(samples: list[list[float]], t: float) -> tuple[float, float, float]:
+    """A scripted vehicle's position at t (linear between waypoints, held outside: as the engine moves it)."""
+    ts = [s[0] for s in samples]
+    return tuple(float(np.interp(t, ts, [s[k] for s in samples])) for k in (1, 2, 3))  # type: ignore[return-value]
+
+
+def geometry_links(scene: Scene, veh: Any, dev: Any, model: Any, size: int,
+                   poses: dict[str, list[list[float]]]) -> dict[str, list[list[float]]]:
+    """The modelled PER of `dev`'s frames at each receiver over the run: {receiver id: [[t, per], ...]}, asked of
+    the transmitter's channel model at the two ends' scripted positions (both still: the loss of a frame sent
+    at t).  For models whose loss is not a function of range alone (Bellhop's shadow zones, bathymetry).
+    Receivers whose pose comes from Zenoh are left out (no positions before the run)."""
+    from ..kernel.frame import Frame
+    from ..mobility.trajectory import PoseTable
+    from ..phy.models import Query
+
+    out: dict[str, list[list[float]]] = {}
+    end = scene.end_time()
+    table = PoseTable(["tx", "rx"])
+    frame = Frame(0, 0, 0, int(size), int(size))
+    for v, r in scene.devices():
+        if (r.dccomms_id == dev.dccomms_id or v.name == veh.name or r.rx_channel != dev.tx_channel
+                or not poses.get(v.name) or not poses.get(veh.name)):
+            continue
+        marks = sorted({0.0, end, *(s[0] for s in poses[veh.name] + poses[v.name] if 0.0 <= s[0] <= end)})
+        ts = sorted({float(a + (b - a) * k / LINK_STEPS) for a, b in zip(marks, marks[1:], strict=False)
+                     for k in range(LINK_STEPS + 1)} or {0.0})
+        if len(ts) > LINK_SAMPLES:
+            ts = [float(t) for t in np.linspace(0.0, end, LINK_SAMPLES)]
+        series = []
+        for t in ts:
+            p, q = _at(poses[veh.name], t), _at(poses[v.name], t)
+            table.set_static("tx", p)
+            table.set_static("rx", q)
+            dist = float(np.linalg.norm(np.subtract(p, q)))
+            if dist < dev.min_distance or dist > dev.max_distance:
+                series.append([round(t, 6), None])          # out of range: no link to colour
+                continue
+            ans = model.answer(Query(t, frame, [dist], [0], table, 0, [1]))
+            series.append([round(t, 6), round(float(ans.per[0]), 6)])
+        out[r.dccomms_id] = series
+    return out
 
 
 def meta_parts(meta: dict[str, Any]) -> dict[str, Any]:

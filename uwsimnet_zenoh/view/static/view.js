@@ -289,19 +289,32 @@
       }
     }
   }
+  function seriesAt(a, T) {                         // [[t, v], ...] linear in t, held outside; null where v is
+    const i = lastAtOrBefore(a, T, (e) => e[0]);
+    if (i < 0) return a[0][1];
+    if (i === a.length - 1 || a[i][1] == null || a[i + 1][1] == null) return a[i][1];
+    const [t0, v0] = a[i], [t1, v1] = a[i + 1];
+    return v0 + (v1 - v0) * (T - t0) / (t1 - t0);
+  }
   function linkLoss(id, rid, d, dist, T) {          // the number a link is coloured by, or null (unknown)
-    if (S.linkBy === "model") return S.doc.positions ? perAt(d, dist) : null;
+    if (S.linkBy === "model") {
+      if (!S.doc.positions) return null;
+      const a = d.links && d.links[rid];             // a geometry model (Bellhop): asked along the scripted paths
+      return a && a.length ? seriesAt(a, T) : perAt(d, dist);
+    }
     const m = measuredLoss(id, rid, T);
     return m && m.loss;
   }
   function linkMode() {                             // modelled PER where the scene gives curves, else measured
     if (S.linkBy == null) {
-      const curves = S.doc.positions && Object.values(S.doc.devices).some((d) => d.per && d.per.length);
+      const curves = S.doc.positions && Object.values(S.doc.devices).some((d) => (d.per && d.per.length) ||
+        (d.links && Object.keys(d.links).length));
       S.linkBy = curves ? "model" : "measured";
     }
     $("linkby").value = S.linkBy;
     $("linkwhat").textContent = S.linkBy === "model"
-      ? "the transmitter's modelled PER at the link's distance (its loss model, a frame of the flows' size)"
+      ? "PER modelled by the transmitter's channel model for a frame of the flows' size, at the link's distance" +
+        " (or, for a geometry model such as Bellhop, at both ends' scripted positions)"
       : `measured loss, 1 − delivered / outcomes over the link's last ${LINK_WINDOW} frames up to the time shown`;
   }
   function drawVehicles(T) {
