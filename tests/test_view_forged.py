@@ -121,7 +121,7 @@ return [...document.querySelectorAll('*')].filter(e => !tags.has(e.localName)).m
   .concat([...document.querySelectorAll('*')].flatMap(e => [...e.attributes].filter(a => a.name.startsWith('on'))
   .map(a => e.localName + ' ' + a.name)))
   .concat([...document.scripts].map(s => s.getAttribute('src'))
-  .filter(s => !/^static\\/(labels|view)\\.js$/.test(s)));"""
+  .filter(s => !/^static\\/(lib|labels|view)\\.js$/.test(s)));"""
 
 
 @needs_browser

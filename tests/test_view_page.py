@@ -217,6 +217,29 @@ for (const f of [0.3, 0.4, 0.6, 0.7]) {
 return out;"""
 
 
+def _click_link(b, tmp_path, recs: list[dict], t: float) -> None:
+    """A click on the buoy -> AUV line shows the link: Bellhop's level (184 dB source level minus the shipped
+    grid's TL at 10 m / 20 m / 1000 m) and the trace's outcomes up to t."""
+    from uwsimnet_zenoh.phy import bellhop
+
+    x, y = b.js("""const m = document.getElementById('map'), r = m.getBoundingClientRect();
+        const a = uwsimnetView.pixel('buoy'), c = uwsimnetView.pixel('auv'), L = Math.hypot(c[0] - a[0], c[1] - a[1]);
+        const px = a[0] + (c[0] - a[0]) * 0.35 - (c[1] - a[1]) / L * 2;
+        const py = a[1] + (c[1] - a[1]) * 0.35 + (c[0] - a[0]) / L * 2;
+        return [r.left + px * r.width / m.width, r.top + py * r.height / m.height];""")
+    b.click_at(x, y)
+    detail = b.wait("const d = document.getElementById('detail').textContent; return d.startsWith('link ') && d",
+                    what="the link's details")
+    assert detail.startswith(f"link buoy-modem → auv-modem at t = {t:.3f} s, 1000.0 m"), detail
+    grid = bellhop.Grid.load(next((SHADOW.parent / "bellhop").glob("*.npz")))
+    tl = float(grid.lookup([10.0], [20.0], [1000.0])[0][0])
+    level = float(detail.split("received level ")[1].split(" dB")[0])
+    assert level == pytest.approx(184.0 - tl, abs=0.06), (level, 184.0 - tl)
+    assert "modelled PER (frame of " in detail and ": 1.000 at both ends' positions" in detail, detail
+    n = sum(r["dev"] == "auv-modem" and r["ev"] in ("rx", "drop") and r["src"] == 1 and r["t"] <= t for r in recs)
+    assert f"measured loss: 1.000 (0 of the last {n} delivered)" in detail and f"outcomes up to t: prop {n}" in detail
+
+
 @needs_browser
 def test_a_bellhop_shadow_zone_colours_the_link_red_until_the_dive(browser, tmp_path, monkeypatch):  # noqa: F811
     """tests/data/ocean-shadow.xml with the grid Bellhop made (shipped): the AUV 1000 m away at 20 m depth is in
@@ -249,6 +272,7 @@ def test_a_bellhop_shadow_zone_colours_the_link_red_until_the_dive(browser, tmp_
             assert (red, green) == ((len(px), 0) if t < 60 else (0, len(px))), (t, px)
             if t < 60:
                 shot(browser, tmp_path, "view-shadow.png")
+                _click_link(browser, tmp_path, recs, t)
         assert seen[30.0]["value"] == pytest.approx(1.0, abs=1e-6)
         assert seen[150.0]["value"] == pytest.approx(0.0, abs=1e-6)
         # the loss measured in the trace says the same over the last 20 frames (30 s before and after)

@@ -105,40 +105,46 @@ def _at(samples: list[list[float]], t: float) -> tuple[float, float, float]:
 
 
 def geometry_links(scene: Scene, veh: Any, dev: Any, model: Any, size: int,
-                   poses: dict[str, list[list[float]]]) -> dict[str, list[list[float]]]:
-    """The modelled PER of `dev`'s frames at each receiver over the run: {receiver id: [[t, per], ...]}, asked of
-    the transmitter's channel model at the two ends' scripted positions (both still: the loss of a frame sent
-    at t).  For models whose loss is not a function of range alone (Bellhop's shadow zones, bathymetry).
-    Receivers whose pose comes from Zenoh are left out (no positions before the run)."""
+                   poses: dict[str, list[list[float]]]) -> dict[str, list[list[Any]]]:
+    """What `dev`'s channel model says of its frames at each receiver over the run: {receiver id: [[t, per,
+    level dB or None], ...]} (per None: out of range), asked at the ends' scripted positions, both still (the
+    loss of a frame sent at t), one query per time for every receiver at once.  For models whose loss is not
+    a function of range alone (Bellhop's shadow zones, bathymetry).  Receivers whose pose comes from Zenoh
+    are left out (no positions before the run)."""
     from ..kernel.frame import Frame
     from ..mobility.trajectory import PoseTable
     from ..phy.models import Query
 
-    out: dict[str, list[list[float]]] = {}
+    rxs = [(v, r) for v, r in scene.devices() if r.dccomms_id != dev.dccomms_id and v.name != veh.name
+           and r.rx_channel == dev.tx_channel and poses.get(v.name)]
+    if not rxs or not poses.get(veh.name):
+        return {}
     end = scene.end_time()
-    table = PoseTable(["tx", "rx"])
+    names = [veh.name, *dict.fromkeys(v.name for v, _ in rxs)]
+    marks = sorted({0.0, end, *(s[0] for n in names for s in poses[n] if 0.0 <= s[0] <= end)})
+    ts = sorted({float(a + (b - a) * k / LINK_STEPS) for a, b in zip(marks, marks[1:], strict=False)
+                 for k in range(LINK_STEPS + 1)} or {0.0})
+    if len(ts) > LINK_SAMPLES:
+        ts = [float(t) for t in np.linspace(0.0, end, LINK_SAMPLES)]
+    table = PoseTable(names)
     frame = Frame(0, 0, 0, int(size), int(size))
-    for v, r in scene.devices():
-        if (r.dccomms_id == dev.dccomms_id or v.name == veh.name or r.rx_channel != dev.tx_channel
-                or not poses.get(v.name) or not poses.get(veh.name)):
-            continue
-        marks = sorted({0.0, end, *(s[0] for s in poses[veh.name] + poses[v.name] if 0.0 <= s[0] <= end)})
-        ts = sorted({float(a + (b - a) * k / LINK_STEPS) for a, b in zip(marks, marks[1:], strict=False)
-                     for k in range(LINK_STEPS + 1)} or {0.0})
-        if len(ts) > LINK_SAMPLES:
-            ts = [float(t) for t in np.linspace(0.0, end, LINK_SAMPLES)]
-        series = []
-        for t in ts:
-            p, q = _at(poses[veh.name], t), _at(poses[v.name], t)
-            table.set_static("tx", p)
-            table.set_static("rx", q)
-            dist = float(np.linalg.norm(np.subtract(p, q)))
-            if dist < dev.min_distance or dist > dev.max_distance:
-                series.append([round(t, 6), None])          # out of range: no link to colour
+    out: dict[str, list[list[Any]]] = {r.dccomms_id: [] for _, r in rxs}
+    for t in ts:
+        at = {n: _at(poses[n], t) for n in names}
+        for n, p in at.items():
+            table.set_static(n, p)
+        dist = [float(np.linalg.norm(np.subtract(at[veh.name], at[v.name]))) for v, _ in rxs]
+        live = [k for k, d in enumerate(dist) if dev.min_distance <= d <= dev.max_distance]
+        ans = model.answer(Query(t, frame, [dist[k] for k in live], list(range(len(live))), table, 0,
+                                 [names.index(rxs[k][0].name) for k in live])) if live else None
+        got = {k: j for j, k in enumerate(live)}
+        for k, (_, r) in enumerate(rxs):
+            if k not in got or ans is None:
+                out[r.dccomms_id].append([round(t, 6), None, None])      # out of range: no link to colour
                 continue
-            ans = model.answer(Query(t, frame, [dist], [0], table, 0, [1]))
-            series.append([round(t, 6), round(float(ans.per[0]), 6)])
-        out[r.dccomms_id] = series
+            lv = None if ans.level_db is None else _f(ans.level_db[got[k]])
+            out[r.dccomms_id].append([round(t, 6), round(float(ans.per[got[k]]), 6),
+                                      None if lv is None else round(lv, 2)])
     return out
 
 

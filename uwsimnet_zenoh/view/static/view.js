@@ -6,41 +6,20 @@
   const HOLD = 1.5;          // s of simulation time an outcome stays drawn at its receiver
   const TRAIL = 60;          // s of trail behind each vehicle
   const LIST = 40;           // frames in the list (the latest that pass the filters)
-  const LINK_WINDOW = 20;    // outcomes on a link the measured loss is taken over (the latest up to the time shown)
   const DISC = 8;            // px radius of a vehicle's disc
-  const NOLINK = new Set(["range", "nopose"]);   // outcomes that say there was no link to measure
   const CAP = { frames: 4000, events: 5000, poses: 3000 };
   const COLORS = { rx: "#2ecc71", col: "#e74c3c", prop: "#b0b0b0", mult: "#ff8c1a", range: "#7f8c8d" };
   const $ = (id) => document.getElementById(id);
+  const { LINK_WINDOW, lastAtOrBefore, el, perColor, perAt, seriesAt, LinkStats } = window.uwsimnetLib;
 
   const S = {
     doc: null, mode: "replay", T: 0, playing: false, speed: 1, follow: true, ready: false,
-    framesById: new Map(), frames: [], evByDev: new Map(), evAll: [], evIdx: -1, links: new Map(), maxDelay: 1,
+    framesById: new Map(), frames: [], evByDev: new Map(), evAll: [], evIdx: -1, links: null, maxDelay: 1,
     bounds: null, zr: [0, 1], circle: new Map(), lastWall: null, clockAt: 0, connected: false, updates: 0,
     sel: null, linkBy: null, labelBoxes: {},
   };
 
   // -- helpers -----------------------------------------------------------------------------------
-  function lastAtOrBefore(arr, T, key, strict) {    // index of the last element with key(e) <= T (< T), or -1
-    let lo = 0, hi = arr.length - 1, ans = -1;
-    while (lo <= hi) {
-      const mid = (lo + hi) >> 1, k = key(arr[mid]);
-      if (strict ? k < T : k <= T) { ans = mid; lo = mid + 1; } else { hi = mid - 1; }
-    }
-    return ans;
-  }
-  function el(tag, cls, ...kids) {                  // an element whose data is text, never markup (#41)
-    const e = document.createElement(tag);
-    if (cls) e.className = cls;
-    e.append(...kids.map((x) => (x instanceof Node ? x : String(x))));
-    return e;
-  }
-  function perColor(p) {                             // 0 green, 0.5 yellow, 1 red
-    p = Math.max(0, Math.min(1, p));
-    const a = [46, 204, 113], b = [241, 196, 15], c = [231, 76, 60];
-    const [u, v, f] = p < 0.5 ? [a, b, p * 2] : [b, c, (p - 0.5) * 2];
-    return `rgb(${u.map((x, i) => Math.round(x + (v[i] - x) * f)).join(",")})`;
-  }
   function depthColor(z) {
     const [lo, hi] = S.zr;
     const f = hi > lo ? (hi - z) / (hi - lo) : 0.5;  // z up: the highest (shallowest) light, the lowest dark
@@ -48,19 +27,6 @@
     const g = Math.max(0, Math.min(1, f)) * 2, i = Math.min(1, Math.floor(g)), k = g - i;
     return `rgb(${stops[i].map((x, j) => Math.round(x + (stops[i + 1][j] - x) * k)).join(",")})`;
   }
-  function perAt(dev, d) {                            // PER of dev's transmissions at distance d, or null
-    const c = dev.per;
-    if (!c || !c.length) return null;
-    if (d <= c[0][0]) return c[0][1];
-    for (let i = 1; i < c.length; i++) {
-      if (d <= c[i][0]) {
-        const [d0, p0] = c[i - 1], [d1, p1] = c[i];
-        return p0 + (p1 - p0) * (d - d0) / (d1 - d0);
-      }
-    }
-    return c[c.length - 1][1];
-  }
-
   // -- the document --------------------------------------------------------------------------------
   function addFrame(f) {
     const old = S.framesById.get(f.id);
@@ -72,32 +38,8 @@
     }
     for (const [rid, o] of Object.entries(f.outcomes)) {
       S.maxDelay = Math.max(S.maxDelay, o.t - f.t);
-      if (!seen[rid]) { if (S.pending) S.pending.push([f.dev, rid, o]); else observe(f.dev, rid, o); }
+      if (!seen[rid]) { if (S.pending) S.pending.push([f.dev, rid, o]); else S.links.add(f.dev, rid, o); }
     }
-  }
-  function observe(tx, rx, o) {                     // a link's outcomes: [t, delivered so far, heard so far, delivered]
-    if (NOLINK.has(o.outcome)) return;
-    const k = tx + "\u0000" + rx, d = o.outcome === "rx" ? 1 : 0;
-    let a = S.links.get(k);
-    if (!a) { a = []; S.links.set(k, a); }
-    const last = a[a.length - 1];
-    if (last && o.t < last[0]) {                     // a live outcome that came late: keep the list in time order
-      const obs = a.map((e) => [e[0], e[3]]).concat([[o.t, d]]).sort((x, y) => x[0] - y[0]);
-      let r = a[0][1] - a[0][3], n = a[0][2] - 1;
-      a.length = 0;
-      for (const [t, dd] of obs) { r += dd; n++; a.push([t, r, n, dd]); }
-    } else {
-      a.push([o.t, (last ? last[1] : 0) + d, (last ? last[2] : 0) + 1, d]);
-    }
-    if (a.length > CAP.events && S.mode === "live") a.shift();
-  }
-  function measuredLoss(tx, rx, T) {                // {loss, got, n}: the last LINK_WINDOW outcomes up to T, or null
-    const a = S.links.get(tx + "\u0000" + rx);
-    const i = a ? lastAtOrBefore(a, T, (e) => e[0]) : -1;
-    if (i < 0) return null;
-    const s = Math.max(0, i - LINK_WINDOW + 1);
-    const n = a[i][2] - (a[s][2] - 1), got = a[i][1] - (a[s][1] - a[s][3]);
-    return { loss: 1 - got / n, got, n };
   }
   function addEvent(e) {
     let a = S.evByDev.get(e[1]);
@@ -111,10 +53,11 @@
   }
   function load(doc) {
     S.doc = doc; S.mode = doc.mode;
-    S.framesById = new Map(); S.frames = []; S.evByDev = new Map(); S.evAll = []; S.evIdx = -1; S.links = new Map();
+    S.framesById = new Map(); S.frames = []; S.evByDev = new Map(); S.evAll = []; S.evIdx = -1;
+    S.links = new LinkStats(doc.mode === "live" ? CAP.events : 0);
     S.maxDelay = 1; S.pending = [];
     for (const f of doc.frames) addFrame(f);
-    for (const [tx, rx, o] of S.pending.sort((a, b) => a[2].t - b[2].t)) observe(tx, rx, o);
+    for (const [tx, rx, o] of S.pending.sort((a, b) => a[2].t - b[2].t)) S.links.add(tx, rx, o);
     S.pending = null;
     for (const e of doc.events) addEvent(e);
     fitBounds();
@@ -270,6 +213,7 @@
   }
   function drawLinks(T) {
     const devs = S.doc.devices;
+    S.drawn = [];                                   // [tx, rx, from px, to px]: what a click may hit
     for (const [id, d] of Object.entries(devs)) {
       const p = devPos(id, T);
       if (!p) continue;
@@ -284,17 +228,13 @@
         const len = Math.hypot(b[0] - a[0], b[1] - a[1]) || 1, nx = -(b[1] - a[1]) / len * 2, ny = (b[0] - a[0]) / len * 2;
         ctx.strokeStyle = per == null ? "#5d6d7e" : perColor(per);
         ctx.globalAlpha = 0.75; ctx.lineWidth = 2; ctx.setLineDash(per == null ? [4, 4] : []);
+        const sel = S.sel && S.sel.link && S.sel.link[0] === id && S.sel.link[1] === rid;
+        ctx.globalAlpha = sel ? 1 : 0.75; ctx.lineWidth = sel ? 4 : 2;
         ctx.beginPath(); ctx.moveTo(a[0] + nx, a[1] + ny); ctx.lineTo(b[0] + nx, b[1] + ny); ctx.stroke();
         ctx.setLineDash([]); ctx.globalAlpha = 1;
+        S.drawn.push([id, rid, [a[0] + nx, a[1] + ny], [b[0] + nx, b[1] + ny]]);
       }
     }
-  }
-  function seriesAt(a, T) {                         // [[t, v], ...] linear in t, held outside; null where v is
-    const i = lastAtOrBefore(a, T, (e) => e[0]);
-    if (i < 0) return a[0][1];
-    if (i === a.length - 1 || a[i][1] == null || a[i + 1][1] == null) return a[i][1];
-    const [t0, v0] = a[i], [t1, v1] = a[i + 1];
-    return v0 + (v1 - v0) * (T - t0) / (t1 - t0);
   }
   function linkLoss(id, rid, d, dist, T) {          // the number a link is coloured by, or null (unknown)
     if (S.linkBy === "model") {
@@ -302,7 +242,7 @@
       const a = d.links && d.links[rid];             // a geometry model (Bellhop): asked along the scripted paths
       return a && a.length ? seriesAt(a, T) : perAt(d, dist);
     }
-    const m = measuredLoss(id, rid, T);
+    const m = S.links.loss(id, rid, T);
     return m && m.loss;
   }
   function linkMode() {                             // modelled PER where the scene gives curves, else measured
@@ -474,16 +414,34 @@
     for (const tr of $("modems").tBodies[0].rows) tr.className = S.sel && S.sel.devs.includes(tr.dataset.dev) ? "sel" : "";
     if (S.sel && (S.sel.T !== T || S.sel.n !== S.updates)) {
       S.sel.T = T; S.sel.n = S.updates;
-      $("detail").textContent = S.sel.devs.map((dev) => modemDetail(dev, T)).join("\n\n") ||
-        `vehicle ${S.sel.vehicle}: no modem`;
+      $("detail").textContent = S.sel.link ? linkDetail(...S.sel.link, T)
+        : S.sel.devs.map((dev) => modemDetail(dev, T)).join("\n\n") || `vehicle ${S.sel.vehicle}: no modem`;
     }
   }
 
   // -- a modem's details (a click on its vehicle, its label or its row) ----------------------------
   function select(sel) {
+    if (sel.link) { S.sel = { link: sel.link, devs: [] }; return; }
     const devs = sel.dev != null ? [sel.dev]
       : Object.keys(S.doc.devices).filter((k) => S.doc.devices[k].vehicle === sel.vehicle).sort();
     S.sel = { vehicle: sel.vehicle ?? (S.doc.devices[sel.dev] || {}).vehicle, devs };
+  }
+  function linkDetail(tx, rx, T) {                 // a link: what colours it, from the model and from the trace
+    const d = S.doc.devices[tx] || {}, p = devPos(tx, T), q = devPos(rx, T);
+    const dist = p && q ? Math.hypot(p[0] - q[0], p[1] - q[1], p[2] - q[2]) : null;
+    const series = d.links && d.links[rx], m = S.links.loss(tx, rx, T), outs = {};
+    for (let k = lastAtOrBefore(S.frames, T, (f) => f.t); k >= 0; k--) {
+      const f = S.frames[k], o = f.dev === tx && f.outcomes[rx];
+      if (o && o.t <= T) outs[o.outcome] = (outs[o.outcome] || 0) + 1;
+    }
+    const fx = (v, n) => (v == null ? "unknown" : (+v).toFixed(n));
+    const model = series && series.length ? `${fx(seriesAt(series, T), 3)} at both ends' positions` +
+      (series.some((e) => e[2] != null) ? `, received level ${fx(seriesAt(series, T, 2), 1)} dB` : "")
+      : dist != null && d.per ? `${fx(perAt(d, dist), 3)} at ${dist.toFixed(1)} m` : "unknown";
+    return [`link ${tx} → ${rx} at t = ${T.toFixed(3)} s` + (dist != null && S.doc.positions ? `, ${dist.toFixed(1)} m` : ""),
+      `  modelled PER (frame of ${d.link_size ?? "?"} B on air): ${model}`,
+      `  measured loss: ` + (m ? `${fx(m.loss, 3)} (${m.got} of the last ${m.n} delivered)` : "no outcome yet"),
+      `  outcomes up to t: ${Object.entries(outs).sort().map(([k, n]) => `${k} ${n}`).join(", ") || "none"}`].join("\n");
   }
   function modemDetail(dev, T) {                   // text only: every value is data, never markup (#41)
     const d = S.doc.devices[dev] || {}, st = devState(dev, T), p = d.vehicle != null ? posAt(d.vehicle, T) : null;
@@ -608,6 +566,16 @@
         if (dd <= bd) { best = v; bd = dd; }
       }
       if (best != null) select({ vehicle: best });
+      else {                                         // else the link under it (the nearest within 5 px)
+        let bl = null, bd2 = 5;
+        for (const [tx, rx, a, b] of S.drawn || []) {
+          const L2 = (b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2 || 1;
+          const u = Math.max(0, Math.min(1, ((x - a[0]) * (b[0] - a[0]) + (y - a[1]) * (b[1] - a[1])) / L2));
+          const dd = Math.hypot(a[0] + u * (b[0] - a[0]) - x, a[1] + u * (b[1] - a[1]) - y);
+          if (dd <= bd2) { bl = [tx, rx]; bd2 = dd; }
+        }
+        if (bl) select({ link: bl });
+      }
     }
     drag = null;
   });
@@ -694,7 +662,7 @@
       const d = S.doc.devices[tx], p = devPos(tx, S.T), q = devPos(rx, S.T);
       const dist = p && q ? Math.hypot(p[0] - q[0], p[1] - q[1], p[2] - q[2]) : null;
       return { by: S.linkBy, value: d && dist != null ? linkLoss(tx, rx, d, dist, S.T) : null,
-        measured: measuredLoss(tx, rx, S.T) };
+        measured: S.links.loss(tx, rx, S.T) };
     },
     setTime: (T) => { S.playing = false; S.follow = false; setT(T); },
     play: (speed) => { S.speed = speed || S.speed; S.playing = true; },
