@@ -282,3 +282,35 @@ def test_a_bellhop_shadow_zone_colours_the_link_red_until_the_dive(browser, tmp_
             assert m["loss"] == want and m["n"] >= 20, (t, m)
     finally:
         assert view.stop() == 0, view.text()
+
+
+def test_the_document_of_a_geometry_model_has_its_per_along_the_paths_not_a_range_curve(monkeypatch):
+    """ocean-shadow with Bellhop: no PER-vs-range curve (the range is 1000 m throughout while the PER goes from
+    1 to 0), and the series says what the trace's outcomes are at every frame's send time outside the dive."""
+    import bisect
+
+    from uwsimnet_zenoh.engine.network import Network
+    from uwsimnet_zenoh.scene import load_scene
+    from uwsimnet_zenoh.view.state import replay_document
+
+    monkeypatch.setenv("UWSIMNET_CACHE", str(SHADOW.parent))
+    monkeypatch.setenv("UWSIMNET_BELLHOP", "/nonexistent/bellhop")
+    scene = load_scene(SHADOW)
+    net = Network(scene)
+    recs: list[dict] = []
+    net.tracer.add(recs.append)
+    net.run()
+    doc = replay_document({"ev": "meta", "scene": "shadow"}, iter(recs), scene)
+    d = doc["devices"]["buoy-modem"]
+    assert d["per"] is None and set(d["links"]) == {"auv-modem"}
+    series = d["links"]["auv-modem"]
+    assert [s[0] for s in series] == sorted(s[0] for s in series) and series[-1][0] == scene.end_time()
+    tx = {r["seq"]: r["t"] for r in recs if r["ev"] == "tx" and r["dev"] == "buoy-modem"}
+    checked = 0
+    for r in recs:
+        if r["dev"] == "auv-modem" and r["ev"] in ("rx", "drop") and not 60 <= tx[r["seq"]] <= 90:
+            s = series[bisect.bisect_right([x[0] for x in series], tx[r["seq"]]) - 1]
+            assert s[1] == (0.0 if r["ev"] == "rx" else 1.0), (r, s)
+            checked += 1
+    assert checked == 84
+    assert 90 < series[-1][2] < 130 and series[0][2] < series[-1][2]       # levels in dB re 1 uPa: shadow lower

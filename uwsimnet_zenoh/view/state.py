@@ -14,7 +14,9 @@ The page (static/view.js) gets one document, then (live) a stream of updates:
 
 `events` carry each device's cumulative counters after the event and its FIFO occupancy (bytes, carried
 forward), so the page finds the state of a device at any time by a binary search, and a bounded live
-history still shows true totals.
+history still shows true totals.  Each device has `per`, its PER-vs-distance curve [[m, PER], ...] (a
+model whose loss is a function of range), or `links`, {receiver: [[t, PER, level dB], ...]} (a geometry
+model such as Bellhop, asked along the scripted paths), or neither (no scene).
 """
 
 from __future__ import annotations
