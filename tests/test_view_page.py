@@ -314,3 +314,52 @@ def test_the_document_of_a_geometry_model_has_its_per_along_the_paths_not_a_rang
             checked += 1
     assert checked == 84
     assert 90 < series[-1][2] < 130 and series[0][2] < series[-1][2]       # levels in dB re 1 uPa: shadow lower
+
+
+DOPPLER = """<?xml version="1.0"?>
+<UWSimScene>
+  <simulation><seed>2</seed><duration>200</duration></simulation>
+  <CustomCommsChannel><id>0</id><propTimeIncPerMeter>0.6667</propTimeIncPerMeter>
+    <channelModel><name>ocean</name><dopplerTolerance>1</dopplerTolerance></channelModel></CustomCommsChannel>
+  <vehicle><name>alpha</name><position>0 0 -10</position>
+    <CustomCommsDevice><dccommsId>alpha-m</dccommsId><mac>1</mac><txChannelId>0</txChannelId><rxChannelId>0</rxChannelId>
+      <bitrate>2000</bitrate><txFifoSize>2000</txFifoSize>
+      <rateErrorModel><errorUnit>packet</errorUnit><errorRateExpr>0</errorRateExpr></rateErrorModel>
+    </CustomCommsDevice></vehicle>
+  <vehicle><name>bravo</name>
+    <trajectory><waypoint t="0" x="500" y="0" z="-10"/><waypoint t="100" x="200" y="0" z="-10"/></trajectory>
+    <CustomCommsDevice><dccommsId>bravo-m</dccommsId><mac>2</mac><txChannelId>0</txChannelId><rxChannelId>0</rxChannelId>
+      <bitrate>2000</bitrate><txFifoSize>2000</txFifoSize>
+      <rateErrorModel><errorUnit>packet</errorUnit><errorRateExpr>0</errorRateExpr></rateErrorModel>
+    </CustomCommsDevice></vehicle>
+  <flow><name>f</name><src>alpha-m</src><dst>2</dst><size>16</size><interval>2</interval><start>1</start></flow>
+</UWSimScene>"""
+
+
+def test_the_document_of_a_doppler_tolerance_uses_the_vehicles_velocities(tmp_path):
+    """The `ocean` model with dopplerTolerance 1 m/s: bravo closes at 3 m/s until t = 100 s, then holds.  The
+    link's modelled PER is 1 while it moves (3 > 1 m/s: lost whatever the distance) and 0 once it is still; the
+    view asks the model with the run's velocities, and the trace's outcomes agree at every frame."""
+    import bisect
+
+    from uwsimnet_zenoh.engine.network import Network
+    from uwsimnet_zenoh.scene import load_scene_text
+    from uwsimnet_zenoh.view.state import replay_document
+
+    scene = load_scene_text(DOPPLER, str(tmp_path / "doppler.xml"))
+    net = Network(scene)
+    recs: list[dict] = []
+    net.tracer.add(recs.append)
+    net.run()
+    doc = replay_document({"ev": "meta"}, iter(recs), scene)
+    series = doc["devices"]["alpha-m"]["links"]["bravo-m"]
+    assert doc["devices"]["alpha-m"]["per"] is None
+    tx = {r["seq"]: r["t"] for r in recs if r["ev"] == "tx" and r["dev"] == "alpha-m" and r["kind"] == "data"}
+    outs = {tx[r["seq"]]: r["ev"] for r in recs if r["dev"] == "bravo-m" and r["ev"] in ("rx", "drop")
+            and r["kind"] == "data"}
+    assert {o for t, o in outs.items() if t < 99} == {"drop"} and {o for t, o in outs.items() if t > 100} == {"rx"}
+    times = [s[0] for s in series]
+    for t, o in outs.items():
+        if not 99 <= t <= 100:
+            assert series[bisect.bisect_right(times, t) - 1][1] == (1.0 if o == "drop" else 0.0), (t, o)
+    assert len(outs) >= 90

@@ -91,7 +91,7 @@ def scene_parts(scene: Scene, link_size: int | None = None) -> dict[str, Any]:
             curve = [[round(float(a), 3), round(float(b), 6)] for a, b in zip(ds, per, strict=True)]
         else:                   # the loss depends on where both ends are (depths, bathymetry): no curve of range
             curve = None
-            links = geometry_links(scene, v, d, m.error, size + d.header_bytes, poses)
+            links = geometry_links(scene, net, v, d, m.error, size + d.header_bytes, poses)
         devices[d.dccomms_id] = {
             "vehicle": v.name, "address": d.address, "tx_channel": d.tx_channel, "rx_channel": d.rx_channel,
             "bitrate": m.bitrate, "fifo_capacity": d.tx_fifo_bytes, "mac": d.mac.name, "kind": "sim",
@@ -100,26 +100,21 @@ def scene_parts(scene: Scene, link_size: int | None = None) -> dict[str, Any]:
     return {"vehicles": vehicles, "devices": devices, "poses": poses, "positions": True}
 
 
-def _at(samples: list[list[float]], t: float) -> tuple[float, float, float]:
-    """A scripted vehicle's position at t (linear between waypoints, held outside: as the engine moves it)."""
-    ts = [s[0] for s in samples]
-    return tuple(float(np.interp(t, ts, [s[k] for s in samples])) for k in (1, 2, 3))  # type: ignore[return-value]
-
-
-def geometry_links(scene: Scene, veh: Any, dev: Any, model: Any, size: int,
+def geometry_links(scene: Scene, net: Network, veh: Any, dev: Any, model: Any, size: int,
                    poses: dict[str, list[list[float]]]) -> dict[str, list[list[Any]]]:
     """What `dev`'s channel model says of its frames at each receiver over the run: {receiver id: [[t, per,
-    level dB or None], ...]} (per None: out of range), asked at the ends' scripted positions, both still (the
-    loss of a frame sent at t), one query per time for every receiver at once.  For models whose loss is not
-    a function of range alone (Bellhop's shadow zones, bathymetry).  Receivers whose pose comes from Zenoh
-    are left out (no positions before the run)."""
+    level dB or None], ...]} (per None: out of range), asked as the engine asks it, from the run's pose table
+    (scripted positions and velocities at t), one query per time for every receiver at once.  For models whose
+    loss is not a function of range alone (Bellhop's shadow zones, bathymetry, a Doppler tolerance).
+    Vehicles whose pose comes from Zenoh are left out (no positions before the run)."""
     from ..kernel.frame import Frame
-    from ..mobility.trajectory import PoseTable
     from ..phy.models import Query
 
+    if veh.pose_source == "zenoh":
+        return {}
     rxs = [(v, r) for v, r in scene.devices() if r.dccomms_id != dev.dccomms_id and v.name != veh.name
-           and r.rx_channel == dev.tx_channel and poses.get(v.name)]
-    if not rxs or not poses.get(veh.name):
+           and r.rx_channel == dev.tx_channel and v.pose_source != "zenoh"]
+    if not rxs:
         return {}
     end = scene.end_time()
     names = [veh.name, *dict.fromkeys(v.name for v, _ in rxs)]
@@ -128,18 +123,17 @@ def geometry_links(scene: Scene, veh: Any, dev: Any, model: Any, size: int,
                  for k in range(LINK_STEPS + 1)} or {0.0})
     if len(ts) > LINK_SAMPLES:
         ts = [float(t) for t in np.linspace(0.0, end, LINK_SAMPLES)]
-    table = PoseTable(names)
+    table, index = net.poses, net.poses.index
     frame = Frame(0, 0, 0, int(size), int(size))
     out: dict[str, list[list[Any]]] = {r.dccomms_id: [] for _, r in rxs}
     for t in ts:
-        at = {n: _at(poses[n], t) for n in names}
-        for n, p in at.items():
-            table.set_static(n, p)
-        dist = [float(np.linalg.norm(np.subtract(at[veh.name], at[v.name]))) for v, _ in rxs]
+        at = table.points(t)
+        me = at[index[veh.name]]
+        dist = [math.dist(me, at[index[v.name]]) for v, _ in rxs]
         live = [k for k, d in enumerate(dist) if dev.min_distance <= d <= dev.max_distance]
         try:
-            ans = model.answer(Query(t, frame, [dist[k] for k in live], list(range(len(live))), table, 0,
-                                     [names.index(rxs[k][0].name) for k in live])) if live else None
+            ans = model.answer(Query(t, frame, [dist[k] for k in live], list(range(len(live))), table,
+                                     index[veh.name], [index[rxs[k][0].name] for k in live])) if live else None
         except Exception:  # noqa: BLE001 - a plug-in that cannot answer here: its links stay unknown (grey)
             return {}
         got = {k: j for j, k in enumerate(live)}
