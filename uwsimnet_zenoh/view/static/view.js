@@ -412,8 +412,9 @@
     $("clock").textContent = `t = ${T.toFixed(3)} s`;
     if (S.evIdx >= 0 && S.evAll[S.evIdx][0] !== T) { S.evIdx = -1; $("stepinfo").textContent = ""; }
     for (const tr of $("modems").tBodies[0].rows) tr.className = S.sel && S.sel.devs.includes(tr.dataset.dev) ? "sel" : "";
-    if (S.sel && (S.sel.T !== T || S.sel.n !== S.updates)) {
-      S.sel.T = T; S.sel.n = S.updates;
+    const moving = S.playing || (S.mode === "live" && S.follow);
+    if (S.sel && (S.sel.T !== T || S.sel.n !== S.updates) && (!moving || !(performance.now() - S.sel.at < 250))) {
+      S.sel.T = T; S.sel.n = S.updates; S.sel.at = performance.now();   // while time runs: 4 times a second
       $("detail").textContent = S.sel.link ? linkDetail(...S.sel.link, T)
         : S.sel.devs.map((dev) => modemDetail(dev, T)).join("\n\n") || `vehicle ${S.sel.vehicle}: no modem`;
     }
