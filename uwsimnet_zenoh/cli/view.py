@@ -125,7 +125,7 @@ def _live(args: argparse.Namespace) -> int:
     from ..bus.session import BusError
     from ..view.live import LiveSource, check_world, client_session, discover_world
     from ..view.server import ViewServer
-    from ..view.state import LiveState, scene_parts
+    from ..view.state import LiveLinks, LiveState, scene_parts
 
     scene = load_scene_file(args.scene) if args.scene else None
     deadline = time.monotonic() + max(0.0, args.wait)
@@ -148,7 +148,8 @@ def _live(args: argparse.Namespace) -> int:
                 if time.monotonic() >= deadline:
                     raise UserError(f"uwsimnet view: {e}") from None
                 time.sleep(0.5)
-        state = LiveState(world, scene_parts(scene) if scene is not None else None)
+        state = LiveState(world, scene_parts(scene) if scene is not None else None,
+                          links=LiveLinks(scene) if scene is not None else None)
         with LiveSource(session, world, state) as source:
             _serve(ViewServer(live=state, control=source.control), args)
     finally:

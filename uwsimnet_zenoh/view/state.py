@@ -11,6 +11,7 @@ The page (static/view.js) gets one document, then (live) a stream of updates:
               {"type": "devices", "devices": {...}, "vehicles": {...}}
               {"type": "kind", "dev", "kind"}                      sim | real | null (nobody serves it)
               {"type": "control", "control": bool}                 whether pause/resume may be asked
+              {"type": "link", "dev", "rx", "s": [t, per, level]}  a live link sample (LiveLinks)
 
 `events` carry each device's cumulative counters after the event and its FIFO occupancy (bytes, carried
 forward), so the page finds the state of a device at any time by a binary search, and a bounded live
@@ -147,6 +148,67 @@ def geometry_links(scene: Scene, net: Network, veh: Any, dev: Any, model: Any, s
     return out
 
 
+class LiveLinks:
+    """Live (HIL): the modelled PER of the links of a geometry model that have an end whose pose comes from
+    Zenoh, asked of the scene's models at the latest poses received (velocity zero: a pose sample has none
+    here), so the page colours them as it colours the scripted ones (`geometry_links`).  Sans-IO: the live
+    source calls `compute` from a thread of its own."""
+
+    def __init__(self, scene: Scene, link_size: int | None = None) -> None:
+        size = link_size or DEFAULT_LINK_SIZE
+        self.net = Network(scene, flows=False)
+        self.external = {v.name for v in scene.vehicles if v.pose_source == "zenoh"}
+        self.pairs: list[tuple[str, str, Any, Any, list[tuple[str, str]]]] = []
+        """(transmitter id, its vehicle, its model, a frame of the link size, [(receiver id, its vehicle)])."""
+        from ..kernel.frame import Frame
+
+        for v, d in scene.devices():
+            model = self.net.modems[d.dccomms_id].error
+            if getattr(model, "by_distance", True):
+                continue
+            rxs = [(r.dccomms_id, rv.name) for rv, r in scene.devices() if r.dccomms_id != d.dccomms_id
+                   and rv.name != v.name and r.rx_channel == d.tx_channel
+                   and (v.name in self.external or rv.name in self.external)]
+            if rxs:
+                n = size + d.header_bytes
+                self.pairs.append((d.dccomms_id, v.name, model, Frame(0, 0, 0, n, n), rxs))
+        self._range = {d.dccomms_id: (d.min_distance, d.max_distance) for _, d in scene.devices()}
+
+    def __bool__(self) -> bool:
+        return bool(self.pairs)
+
+    def compute(self, t: float, latest: dict[str, tuple[float, float, float]]) -> list[tuple[str, str, list[Any]]]:
+        """[(transmitter, receiver, [t, PER or None, level dB or None])] for every link whose ends are known."""
+        from ..phy.models import Query
+
+        table, index = self.net.poses, self.net.poses.index
+        for name, p in latest.items():
+            table.update(name, t, p)
+        at = table.points(t)
+        out: list[tuple[str, str, list[Any]]] = []
+        for tx, veh, model, frame, rxs in self.pairs:
+            if veh in self.external and veh not in latest:
+                continue
+            known = [(r, rv) for r, rv in rxs if rv not in self.external or rv in latest]
+            lo, hi = self._range[tx]
+            dist = [math.dist(at[index[veh]], at[index[rv]]) for _, rv in known]
+            live = [k for k, d in enumerate(dist) if lo <= d <= hi]
+            try:
+                ans = model.answer(Query(t, frame, [dist[k] for k in live], list(range(len(live))), table,
+                                         index[veh], [index[known[k][1]] for k in live])) if live else None
+            except Exception:  # noqa: BLE001 - a plug-in that cannot answer: these links stay unknown
+                continue
+            got = {k: j for j, k in enumerate(live)}
+            for k, (r, _) in enumerate(known):
+                if ans is None or k not in got:
+                    out.append((tx, r, [round(t, 6), None, None]))
+                    continue
+                lv = None if ans.level_db is None else _f(ans.level_db[got[k]])
+                per = round(float(ans.per[got[k]]), 6)
+                out.append((tx, r, [round(t, 6), per, None if lv is None else round(lv, 2)]))
+        return out
+
+
 def meta_parts(meta: dict[str, Any]) -> dict[str, Any]:
     """Vehicles and devices from a trace's meta line alone: no positions, no PER curves."""
     devices: dict[str, Any] = {}
@@ -222,8 +284,12 @@ class LiveState:
     than the log reaches takes a fresh `snapshot()` instead (a slow browser costs memory of one log, never
     a wait in the feeding thread)."""
 
-    def __init__(self, title: str, parts: dict[str, Any] | None = None, log_size: int = 10000) -> None:
+    def __init__(self, title: str, parts: dict[str, Any] | None = None, log_size: int = 10000,
+                 links: LiveLinks | None = None) -> None:
         self.lock = threading.Lock()
+        self.links = links if links else None
+        """The live links of geometry models with a Zenoh-posed end (`update_links`), or None."""
+        self._links_dirty = False
         self.title = title
         p = parts or {"vehicles": {}, "devices": {}, "poses": {}, "positions": True}
         self.vehicles: dict[str, Any] = p["vehicles"]
@@ -251,7 +317,9 @@ class LiveState:
         self.log.append((self.seq, upd))
 
     def _devices_update(self) -> dict[str, Any]:
-        return {"type": "devices", "devices": {k: dict(v) for k, v in self.devices.items()},
+        """Every device without its link series (the page keeps those; `link` updates extend them)."""
+        return {"type": "devices", "devices": {k: {a: b for a, b in v.items() if a != "links"}
+                                               for k, v in self.devices.items()},
                 "vehicles": {k: dict(v) for k, v in self.vehicles.items()}}
 
     def _notify(self) -> None:
@@ -303,6 +371,8 @@ class LiveState:
                 return                          # out of order (e.g. two publishers): keep time increasing
             q.append(s)
             self._push({"type": "pose", "vehicle": vehicle, "s": s})
+            if self.links is not None and vehicle in self.links.external:
+                self._links_dirty = True
         self._notify()
 
     def set_clock(self, m: dict[str, Any]) -> None:
@@ -360,13 +430,46 @@ class LiveState:
         if changed:
             self._notify()
 
+    def update_links(self) -> int:
+        """Ask the geometry models about the links with a Zenoh-posed end, if a pose came since the last
+        time (called by the live source's thread, never a Zenoh callback); the number of link samples added."""
+        if self.links is None:
+            return 0
+        with self.lock:
+            if not self._links_dirty:
+                return 0
+            self._links_dirty = False
+            t = float(self.clock["t"])
+            latest = {v: (q[-1][1], q[-1][2], q[-1][3]) for v in self.links.external if (q := self.poses.get(v))}
+        rows = self.links.compute(t, latest)
+        n = 0
+        with self.lock:
+            for tx, rx, sample in rows:
+                d = self.devices.get(tx)
+                if d is None:
+                    continue
+                if not isinstance(d.get("links"), dict):
+                    d["links"] = {}
+                series = d["links"].setdefault(rx, [])
+                if series and series[-1][0] >= sample[0]:
+                    continue                            # the clock has not moved (paused): nothing new
+                series.append(sample)
+                if len(series) > LIVE_POSES:
+                    del series[0]
+                self._push({"type": "link", "dev": tx, "rx": rx, "s": sample})
+                n += 1
+        if n:
+            self._notify()
+        return n
+
     # -- reading (web server) --------------------------------------------------------------------
     def snapshot(self) -> tuple[int, dict[str, Any]]:
         """(the update number it includes, the document)."""
         with self.lock:
             doc = {"mode": "live", "title": self.title, "t0": 0.0, "t1": self.clock["t"],
                    "positions": True, "vehicles": dict(self.vehicles),
-                   "devices": {k: dict(v) for k, v in self.devices.items()},
+                   "devices": {k: {**v, "links": {r: list(x) for r, x in v["links"].items()}}
+                               if isinstance(v.get("links"), dict) else dict(v) for k, v in self.devices.items()},
                    "poses": {v: list(q) for v, q in self.poses.items()},
                    "frames": [self.frames[i].to_dict() for i in self.frame_order if i in self.frames],
                    "events": list(self.events), "clock": dict(self.clock), "control": self.control}

@@ -114,7 +114,15 @@
     } else if (u.type === "clock") setClock(u.clock);
     else if (u.type === "control") { d.control = u.control; ctlButtons(); }
     else if (u.type === "kind") { if (d.devices[u.dev]) d.devices[u.dev].kind = u.kind; buildModems(); }
-    else if (u.type === "devices") {
+    else if (u.type === "link") {                   // a live sample of a geometry model's link (HIL)
+      const dev = d.devices[u.dev];
+      if (dev) {
+        const L = dev.links || (dev.links = {}), a = L[u.rx] || (L[u.rx] = []);
+        a.push(u.s);
+        if (a.length > CAP.poses) a.shift();
+      }
+    } else if (u.type === "devices") {
+      for (const [k, v] of Object.entries(u.devices)) if (d.devices[k] && d.devices[k].links) v.links = d.devices[k].links;
       d.devices = u.devices;
       for (const [k, v] of Object.entries(u.vehicles)) if (!d.vehicles[k]) d.vehicles[k] = v;
       for (const k of Object.keys(u.vehicles)) if (!d.poses[k]) d.poses[k] = [];
@@ -248,7 +256,7 @@
   function linkMode() {                             // modelled PER where the scene gives curves, else measured
     if (S.linkBy == null) {
       const curves = S.doc.positions && Object.values(S.doc.devices).some((d) => (d.per && d.per.length) ||
-        (d.links && Object.keys(d.links).length));
+        d.links != null);
       S.linkBy = curves ? "model" : "measured";
     }
     $("linkby").value = S.linkBy;
