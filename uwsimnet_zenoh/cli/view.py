@@ -123,9 +123,10 @@ def cmd_view(args: argparse.Namespace) -> int:
 def _live(args: argparse.Namespace) -> int:
     from ..app.virtual import load_scene_file  # noqa: PLC0415 - see the imports
     from ..bus.session import BusError
+    from ..view.links import LiveLinks
     from ..view.live import LiveSource, check_world, client_session, discover_world
     from ..view.server import ViewServer
-    from ..view.state import LiveLinks, LiveState, scene_parts
+    from ..view.state import LiveState, scene_parts
 
     scene = load_scene_file(args.scene) if args.scene else None
     deadline = time.monotonic() + max(0.0, args.wait)
