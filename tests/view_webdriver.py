@@ -102,6 +102,20 @@ class Browser:
         eid = next(iter(el.values()))
         self._s("POST", f"/element/{eid}/click", {})
 
+    def click_at(self, x: float, y: float) -> None:
+        """A real mouse click (pointer down and up) at viewport coordinates (CSS px)."""
+        steps = [{"type": "pointerMove", "duration": 0, "origin": "viewport", "x": round(x), "y": round(y)},
+                 {"type": "pointerDown", "button": 0}, {"type": "pointerUp", "button": 0}]
+        self._s("POST", "/actions", {"actions": [{"type": "pointer", "id": "mouse",
+                                                  "parameters": {"pointerType": "mouse"}, "actions": steps}]})
+        self._s("DELETE", "/actions")
+
+    def key(self, key: str) -> None:
+        """Press and release one key on whatever has the focus (W3C key values: "." or "\ue014" = ArrowRight)."""
+        self._s("POST", "/actions", {"actions": [{"type": "key", "id": "keyboard", "actions": [
+            {"type": "keyDown", "value": key}, {"type": "keyUp", "value": key}]}]})
+        self._s("DELETE", "/actions")
+
     def screenshot(self, path: Path) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(base64.b64decode(self._s("GET", "/screenshot")))

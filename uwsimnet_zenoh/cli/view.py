@@ -124,6 +124,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 def _live(args: argparse.Namespace) -> int:
     from ..app.virtual import load_scene_file  # noqa: PLC0415 - see the imports
     from ..bus.session import BusError
+    from ..view.links import LiveLinks
     from ..view.live import LiveSource, check_world, client_session, discover_world
     from ..view.server import ViewServer
     from ..view.state import LiveState, scene_parts
@@ -149,7 +150,8 @@ def _live(args: argparse.Namespace) -> int:
                 if time.monotonic() >= deadline:
                     raise UserError(f"uwsimnet view: {e}") from None
                 time.sleep(0.5)
-        state = LiveState(world, scene_parts(scene) if scene is not None else None)
+        state = LiveState(world, scene_parts(scene) if scene is not None else None,
+                          links=LiveLinks(scene) if scene is not None else None)
         with LiveSource(session, world, state) as source:
             _serve(ViewServer(live=state, control=source.control), args)
     finally:

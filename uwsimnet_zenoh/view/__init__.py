@@ -1,7 +1,8 @@
 """`uwsimnet view`: a local web page of a replayed trace or a live world (docs/view.md).
 
-state.py is sans-IO (the document and its live updates), live.py the Zenoh client, server.py the aiohttp
-server; static/ holds the page (plain HTML, CSS and JavaScript: no build step, nothing from the network).
+state.py (the document and its live updates) and links.py (what the channel models say of each link) are
+sans-IO, live.py the Zenoh client, server.py the aiohttp server; static/ holds the page (plain HTML, CSS and
+JavaScript: no build step, nothing from the network).
 """
 
 DEFAULT_PORT = 8765

@@ -24,6 +24,8 @@ from .state import LiveState
 REFRESH_S = 2.0
 """How often the world's modems and vehicles are asked again (devices come and go at runtime)."""
 CONNECT_TIMEOUT_MS = 3000
+LINKS_S = 0.25
+"""How often the links of geometry models with a Zenoh-posed end are asked again (when a pose came)."""
 
 
 def client_session(connect: list[str] | None, config_file: str | None) -> zenoh.Session:
@@ -98,6 +100,10 @@ class LiveSource:
         ]
         self._thread = threading.Thread(target=self._refresher, name="view-refresh", daemon=True)
         self._thread.start()
+        self._linker = None
+        if state.links is not None:             # geometry models asked off the Zenoh threads (a query may take ms)
+            self._linker = threading.Thread(target=self._links, name="view-links", daemon=True)
+            self._linker.start()
 
     def __enter__(self) -> LiveSource:
         return self
@@ -111,6 +117,8 @@ class LiveSource:
             with contextlib.suppress(Exception):
                 s.undeclare()
         self._thread.join(timeout=5)
+        if self._linker is not None:
+            self._linker.join(timeout=5)
 
     # -- callbacks (Zenoh threads) ----------------------------------------------------------------
     def _on_pose(self, sample: zenoh.Sample) -> None:
@@ -184,9 +192,14 @@ class LiveSource:
                 modems[m["id"]] = {"vehicle": m.get("vehicle"), "address": m.get("address"),
                                    "tx_channel": m.get("tx_channel"), "rx_channel": m.get("rx_channel"),
                                    "fifo_capacity": m.get("fifo_capacity"),
-                                   "max_distance": cfg.get("max_distance"), "kind": m.get("kind")}
+                                   "max_distance": cfg.get("max_distance"), "kind": m.get("kind"),
+                                   "mac": m.get("mac"), "bitrate": m.get("bitrate")}
         if modems:
             self.state.merge_state({"modems": modems})
+
+    def _links(self) -> None:
+        while not self._stop.wait(LINKS_S):
+            self.state.update_links()
 
     def _refresher(self) -> None:
         """Refresh every REFRESH_S; until control answers, sooner (0.1 s doubling): a fresh client session

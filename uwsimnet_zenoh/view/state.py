@@ -5,16 +5,19 @@ The page (static/view.js) gets one document, then (live) a stream of updates:
 
     document  {mode, title, t0, t1, positions, vehicles, devices, poses, frames, events, clock, control}
     updates   {"type": "pose", "vehicle", "s": [t, x, y, z]}       a pose sample
-              {"type": "event", "e": [t, dev, ev, reason, fifo, enq, tx, rx, drop]}
+              {"type": "event", "e": [t, dev, ev, reason, fifo, enq, tx, rx, drop, src, seq, kind]}
               {"type": "frame", "f": AirFrame.to_dict()}           created at tx, sent again per outcome
               {"type": "clock", "clock": {t, paused, speed, epoch}}
               {"type": "devices", "devices": {...}, "vehicles": {...}}
               {"type": "kind", "dev", "kind"}                      sim | real | null (nobody serves it)
               {"type": "control", "control": bool}                 whether pause/resume may be asked
+              {"type": "link", "dev", "rx", "s": [t, per, level]}  a live link sample (LiveLinks)
 
 `events` carry each device's cumulative counters after the event and its FIFO occupancy (bytes, carried
 forward), so the page finds the state of a device at any time by a binary search, and a bounded live
-history still shows true totals.
+history still shows true totals.  Each device has `per`, its PER-vs-distance curve [[m, PER], ...] (a
+model whose loss is a function of range), or `links`, {receiver: [[t, PER, level dB], ...]} (a geometry
+model such as Bellhop, asked along the scripted paths), or neither (no scene).
 """
 
 from __future__ import annotations
@@ -31,11 +34,10 @@ from ..analysis import TraceError
 from ..analysis.airframes import AirFrame, AirTracker
 from ..engine.network import Network
 from ..scene.model import Scene
+from .links import DEFAULT_LINK_SIZE, LiveLinks, geometry_links
 
 PER_POINTS = 48
 """Samples of each transmitter's PER-vs-distance curve (the page interpolates linearly)."""
-DEFAULT_LINK_SIZE = 64
-"""Bytes on air of the frame the link colours are computed for when nothing better is known."""
 LIVE_FRAMES = 4000
 LIVE_EVENTS = 20000
 LIVE_POSES = 3000
@@ -76,15 +78,20 @@ def scene_parts(scene: Scene, link_size: int | None = None) -> dict[str, Any]:
     devices: dict[str, Any] = {}
     for v, d in scene.devices():
         m = net.modems[d.dccomms_id]
-        top = min(d.max_distance, span)
-        ds = np.linspace(max(d.min_distance, 0.0), max(top, d.min_distance + 1e-6), PER_POINTS)
-        per = np.asarray(m.error.per(ds, size + d.header_bytes), dtype=float).reshape(-1)
+        links = None
+        if getattr(m.error, "by_distance", True):
+            top = min(d.max_distance, span)
+            ds = np.linspace(max(d.min_distance, 0.0), max(top, d.min_distance + 1e-6), PER_POINTS)
+            per = np.asarray(m.error.per(ds, size + d.header_bytes), dtype=float).reshape(-1)
+            curve = [[round(float(a), 3), round(float(b), 6)] for a, b in zip(ds, per, strict=True)]
+        else:                   # the loss depends on where both ends are (depths, bathymetry): no curve of range
+            curve = None
+            links = geometry_links(scene, net, v, d, m.error, size + d.header_bytes, poses)
         devices[d.dccomms_id] = {
             "vehicle": v.name, "address": d.address, "tx_channel": d.tx_channel, "rx_channel": d.rx_channel,
             "bitrate": m.bitrate, "fifo_capacity": d.tx_fifo_bytes, "mac": d.mac.name, "kind": "sim",
             "min_distance": d.min_distance, "max_distance": _f(d.max_distance),
-            "per": [[round(float(a), 3), round(float(b), 6)] for a, b in zip(ds, per, strict=True)],
-            "link_size": size + d.header_bytes}
+            "per": curve, "links": links, "link_size": size + d.header_bytes}
     return {"vehicles": vehicles, "devices": devices, "poses": poses, "positions": True}
 
 
@@ -126,7 +133,8 @@ class Counters:
         c[("enq", "tx", "rx", "drop").index(rec["ev"])] += 1
         if isinstance(rec.get("fifo"), int):
             self._fifo[dev] = rec["fifo"]
-        return [rec["t"], dev, rec["ev"], rec.get("reason"), self._fifo.get(dev), *c]
+        return [rec["t"], dev, rec["ev"], rec.get("reason"), self._fifo.get(dev), *c, rec.get("src"), rec.get("seq"),
+                rec.get("kind") or "data"]
 
 
 def replay_document(meta: dict[str, Any], events: Iterable[dict[str, Any]], scene: Scene | None = None,
@@ -162,8 +170,12 @@ class LiveState:
     than the log reaches takes a fresh `snapshot()` instead (a slow browser costs memory of one log, never
     a wait in the feeding thread)."""
 
-    def __init__(self, title: str, parts: dict[str, Any] | None = None, log_size: int = 10000) -> None:
+    def __init__(self, title: str, parts: dict[str, Any] | None = None, log_size: int = 10000,
+                 links: LiveLinks | None = None) -> None:
         self.lock = threading.Lock()
+        self.links = links if links else None
+        """The live links of geometry models with a Zenoh-posed end (`update_links`), or None."""
+        self._links_dirty = False
         self.title = title
         p = parts or {"vehicles": {}, "devices": {}, "poses": {}, "positions": True}
         self.vehicles: dict[str, Any] = p["vehicles"]
@@ -191,7 +203,9 @@ class LiveState:
         self.log.append((self.seq, upd))
 
     def _devices_update(self) -> dict[str, Any]:
-        return {"type": "devices", "devices": {k: dict(v) for k, v in self.devices.items()},
+        """Every device without its link series (the page keeps those; `link` updates extend them)."""
+        return {"type": "devices", "devices": {k: {a: b for a, b in v.items() if a != "links"}
+                                               for k, v in self.devices.items()},
                 "vehicles": {k: dict(v) for k, v in self.vehicles.items()}}
 
     def _notify(self) -> None:
@@ -243,6 +257,8 @@ class LiveState:
                 return                          # out of order (e.g. two publishers): keep time increasing
             q.append(s)
             self._push({"type": "pose", "vehicle": vehicle, "s": s})
+            if self.links is not None and vehicle in self.links.external:
+                self._links_dirty = True
         self._notify()
 
     def set_clock(self, m: dict[str, Any]) -> None:
@@ -286,7 +302,8 @@ class LiveState:
                 if not isinstance(m, dict):
                     continue
                 d = self.devices.setdefault(dev, {"per": None, "fifo_capacity": None})
-                for k in ("vehicle", "address", "tx_channel", "rx_channel", "fifo_capacity", "max_distance"):
+                for k in ("vehicle", "address", "tx_channel", "rx_channel", "fifo_capacity", "max_distance", "mac",
+                          "bitrate"):
                     if m.get(k) is not None and d.get(k) != m[k]:
                         d[k] = m[k]
                         changed = True
@@ -299,13 +316,46 @@ class LiveState:
         if changed:
             self._notify()
 
+    def update_links(self) -> int:
+        """Ask the geometry models about the links with a Zenoh-posed end, if a pose came since the last
+        time (called by the live source's thread, never a Zenoh callback); the number of link samples added."""
+        if self.links is None:
+            return 0
+        with self.lock:
+            if not self._links_dirty:
+                return 0
+            self._links_dirty = False
+            t = float(self.clock["t"])
+            latest = {v: (q[-1][1], q[-1][2], q[-1][3]) for v in self.links.external if (q := self.poses.get(v))}
+        rows = self.links.compute(t, latest)
+        n = 0
+        with self.lock:
+            for tx, rx, sample in rows:
+                d = self.devices.get(tx)
+                if d is None:
+                    continue
+                if not isinstance(d.get("links"), dict):
+                    d["links"] = {}
+                series = d["links"].setdefault(rx, [])
+                if series and series[-1][0] >= sample[0]:
+                    continue                            # the clock has not moved (paused): nothing new
+                series.append(sample)
+                if len(series) > LIVE_POSES:
+                    del series[0]
+                self._push({"type": "link", "dev": tx, "rx": rx, "s": sample})
+                n += 1
+        if n:
+            self._notify()
+        return n
+
     # -- reading (web server) --------------------------------------------------------------------
     def snapshot(self) -> tuple[int, dict[str, Any]]:
         """(the update number it includes, the document)."""
         with self.lock:
             doc = {"mode": "live", "title": self.title, "t0": 0.0, "t1": self.clock["t"],
                    "positions": True, "vehicles": dict(self.vehicles),
-                   "devices": {k: dict(v) for k, v in self.devices.items()},
+                   "devices": {k: {**v, "links": {r: list(x) for r, x in v["links"].items()}}
+                               if isinstance(v.get("links"), dict) else dict(v) for k, v in self.devices.items()},
                    "poses": {v: list(q) for v, q in self.poses.items()},
                    "frames": [self.frames[i].to_dict() for i in self.frame_order if i in self.frames],
                    "events": list(self.events), "clock": dict(self.clock), "control": self.control}

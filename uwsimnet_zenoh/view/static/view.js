@@ -6,37 +6,20 @@
   const HOLD = 1.5;          // s of simulation time an outcome stays drawn at its receiver
   const TRAIL = 60;          // s of trail behind each vehicle
   const LIST = 40;           // frames in the list (the latest that pass the filters)
+  const DISC = 8;            // px radius of a vehicle's disc
   const CAP = { frames: 4000, events: 5000, poses: 3000 };
   const COLORS = { rx: "#2ecc71", col: "#e74c3c", prop: "#b0b0b0", mult: "#ff8c1a", range: "#7f8c8d" };
   const $ = (id) => document.getElementById(id);
+  const { LINK_WINDOW, lastAtOrBefore, el, perColor, perAt, seriesAt, LinkStats } = window.uwsimnetLib;
 
   const S = {
     doc: null, mode: "replay", T: 0, playing: false, speed: 1, follow: true, ready: false,
-    framesById: new Map(), frames: [], evByDev: new Map(), maxDelay: 1, bounds: null, zr: [0, 1],
-    circle: new Map(), lastWall: null, clockAt: 0, connected: false, updates: 0,
+    framesById: new Map(), frames: [], evByDev: new Map(), evAll: [], evIdx: -1, links: null, maxDelay: 1,
+    bounds: null, zr: [0, 1], circle: new Map(), lastWall: null, clockAt: 0, connected: false, updates: 0,
+    sel: null, linkBy: null, labelBoxes: {},
   };
 
   // -- helpers -----------------------------------------------------------------------------------
-  function lastAtOrBefore(arr, T, key) {            // index of the last element with key(e) <= T, or -1
-    let lo = 0, hi = arr.length - 1, ans = -1;
-    while (lo <= hi) {
-      const mid = (lo + hi) >> 1;
-      if (key(arr[mid]) <= T) { ans = mid; lo = mid + 1; } else { hi = mid - 1; }
-    }
-    return ans;
-  }
-  function el(tag, cls, ...kids) {                  // an element whose data is text, never markup (#41)
-    const e = document.createElement(tag);
-    if (cls) e.className = cls;
-    e.append(...kids.map((x) => (x instanceof Node ? x : String(x))));
-    return e;
-  }
-  function perColor(p) {                             // 0 green, 0.5 yellow, 1 red
-    p = Math.max(0, Math.min(1, p));
-    const a = [46, 204, 113], b = [241, 196, 15], c = [231, 76, 60];
-    const [u, v, f] = p < 0.5 ? [a, b, p * 2] : [b, c, (p - 0.5) * 2];
-    return `rgb(${u.map((x, i) => Math.round(x + (v[i] - x) * f)).join(",")})`;
-  }
   function depthColor(z) {
     const [lo, hi] = S.zr;
     const f = hi > lo ? (hi - z) / (hi - lo) : 0.5;  // z up: the highest (shallowest) light, the lowest dark
@@ -44,39 +27,38 @@
     const g = Math.max(0, Math.min(1, f)) * 2, i = Math.min(1, Math.floor(g)), k = g - i;
     return `rgb(${stops[i].map((x, j) => Math.round(x + (stops[i + 1][j] - x) * k)).join(",")})`;
   }
-  function perAt(dev, d) {                            // PER of dev's transmissions at distance d, or null
-    const c = dev.per;
-    if (!c || !c.length) return null;
-    if (d <= c[0][0]) return c[0][1];
-    for (let i = 1; i < c.length; i++) {
-      if (d <= c[i][0]) {
-        const [d0, p0] = c[i - 1], [d1, p1] = c[i];
-        return p0 + (p1 - p0) * (d - d0) / (d1 - d0);
-      }
-    }
-    return c[c.length - 1][1];
-  }
-
   // -- the document --------------------------------------------------------------------------------
   function addFrame(f) {
     const old = S.framesById.get(f.id);
+    const seen = old ? old.outcomes : {};
     if (old) { old.outcomes = f.outcomes; } else {
       S.framesById.set(f.id, f);
       S.frames.push(f);
       if (S.frames.length > CAP.frames && S.mode === "live") S.framesById.delete(S.frames.shift().id);
     }
-    for (const o of Object.values(f.outcomes)) S.maxDelay = Math.max(S.maxDelay, o.t - f.t);
+    for (const [rid, o] of Object.entries(f.outcomes)) {
+      S.maxDelay = Math.max(S.maxDelay, o.t - f.t);
+      if (!seen[rid]) { if (S.pending) S.pending.push([f.dev, rid, o]); else S.links.add(f.dev, rid, o); }
+    }
   }
   function addEvent(e) {
     let a = S.evByDev.get(e[1]);
     if (!a) { a = []; S.evByDev.set(e[1], a); }
     a.push(e);
-    if (a.length > CAP.events && S.mode === "live") a.shift();
+    S.evAll.push(e);
+    if (S.mode === "live") {
+      if (a.length > CAP.events) a.shift();
+      if (S.evAll.length > CAP.events) { S.evAll.shift(); S.evIdx--; }
+    }
   }
   function load(doc) {
     S.doc = doc; S.mode = doc.mode;
-    S.framesById = new Map(); S.frames = []; S.evByDev = new Map(); S.maxDelay = 1;
+    S.framesById = new Map(); S.frames = []; S.evByDev = new Map(); S.evAll = []; S.evIdx = -1;
+    S.links = new LinkStats(doc.mode === "live" ? CAP.events : 0);
+    S.maxDelay = 1; S.pending = [];
     for (const f of doc.frames) addFrame(f);
+    for (const [tx, rx, o] of S.pending.sort((a, b) => a[2].t - b[2].t)) S.links.add(tx, rx, o);
+    S.pending = null;
     for (const e of doc.events) addEvent(e);
     fitBounds();
     $("title").textContent = doc.title;
@@ -87,6 +69,7 @@
     if (doc.mode === "live") setClock(doc.clock); else { S.T = doc.t0; }
     ctlButtons();
     buildModems();
+    linkMode();
     S.ready = true;
   }
   function fitBounds() {
@@ -131,7 +114,15 @@
     } else if (u.type === "clock") setClock(u.clock);
     else if (u.type === "control") { d.control = u.control; ctlButtons(); }
     else if (u.type === "kind") { if (d.devices[u.dev]) d.devices[u.dev].kind = u.kind; buildModems(); }
-    else if (u.type === "devices") {
+    else if (u.type === "link") {                   // a live sample of a geometry model's link (HIL)
+      const dev = d.devices[u.dev];
+      if (dev) {
+        const L = dev.links || (dev.links = {}), a = L[u.rx] || (L[u.rx] = []);
+        a.push(u.s);
+        if (a.length > CAP.poses) a.shift();
+      }
+    } else if (u.type === "devices") {
+      for (const [k, v] of Object.entries(u.devices)) if (d.devices[k] && d.devices[k].links) v.links = d.devices[k].links;
       d.devices = u.devices;
       for (const [k, v] of Object.entries(u.vehicles)) if (!d.vehicles[k]) d.vehicles[k] = v;
       for (const k of Object.keys(u.vehicles)) if (!d.poses[k]) d.poses[k] = [];
@@ -230,6 +221,7 @@
   }
   function drawLinks(T) {
     const devs = S.doc.devices;
+    S.drawn = [];                                   // [tx, rx, from px, to px]: what a click may hit
     for (const [id, d] of Object.entries(devs)) {
       const p = devPos(id, T);
       if (!p) continue;
@@ -239,17 +231,42 @@
         if (!q) continue;
         const dist = Math.hypot(p[0] - q[0], p[1] - q[1], p[2] - q[2]);
         if (dist < (d.min_distance || 0) || (d.max_distance != null && dist > d.max_distance)) continue;
-        const per = S.doc.positions ? perAt(d, dist) : null;
+        const per = linkLoss(id, rid, d, dist, T);
         const a = toPx(p), b = toPx(q);
         const len = Math.hypot(b[0] - a[0], b[1] - a[1]) || 1, nx = -(b[1] - a[1]) / len * 2, ny = (b[0] - a[0]) / len * 2;
         ctx.strokeStyle = per == null ? "#5d6d7e" : perColor(per);
         ctx.globalAlpha = 0.75; ctx.lineWidth = 2; ctx.setLineDash(per == null ? [4, 4] : []);
+        const sel = S.sel && S.sel.link && S.sel.link[0] === id && S.sel.link[1] === rid;
+        ctx.globalAlpha = sel ? 1 : 0.75; ctx.lineWidth = sel ? 4 : 2;
         ctx.beginPath(); ctx.moveTo(a[0] + nx, a[1] + ny); ctx.lineTo(b[0] + nx, b[1] + ny); ctx.stroke();
         ctx.setLineDash([]); ctx.globalAlpha = 1;
+        S.drawn.push([id, rid, [a[0] + nx, a[1] + ny], [b[0] + nx, b[1] + ny]]);
       }
     }
   }
+  function linkLoss(id, rid, d, dist, T) {          // the number a link is coloured by, or null (unknown)
+    if (S.linkBy === "model") {
+      if (!S.doc.positions) return null;
+      const a = d.links && d.links[rid];             // a geometry model (Bellhop): asked along the scripted paths
+      return a && a.length ? seriesAt(a, T) : perAt(d, dist);
+    }
+    const m = S.links.loss(id, rid, T);
+    return m && m.loss;
+  }
+  function linkMode() {                             // modelled PER where the scene gives curves, else measured
+    if (S.linkBy == null) {
+      const curves = S.doc.positions && Object.values(S.doc.devices).some((d) => (d.per && d.per.length) ||
+        d.links != null);
+      S.linkBy = curves ? "model" : "measured";
+    }
+    $("linkby").value = S.linkBy;
+    $("linkwhat").textContent = S.linkBy === "model"
+      ? "PER modelled by the transmitter's channel model for a frame of the flows' size, at the link's distance" +
+        " (or, for a geometry model such as Bellhop, at both ends' scripted positions)"
+      : `measured loss, 1 − delivered / outcomes over the link's last ${LINK_WINDOW} frames up to the time shown`;
+  }
   function drawVehicles(T) {
+    const items = [];
     for (const v of Object.keys(S.doc.vehicles)) {
       const a = S.doc.poses[v] || [];
       if (S.doc.positions && a.length > 1) {          // trail
@@ -269,10 +286,48 @@
       const [x, y] = toPx(p);
       ctx.fillStyle = S.doc.positions ? depthColor(p[2]) : "#8fb3d9";
       ctx.strokeStyle = "#0a1320"; ctx.lineWidth = 2;
-      ctx.beginPath(); ctx.arc(x, y, 8, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
-      ctx.fillStyle = "#dce6f0"; ctx.font = "12px sans-serif";
-      ctx.fillText(S.doc.positions ? `${v} (z ${p[2].toFixed(1)})` : v, x + 11, y - 8);
+      ctx.beginPath(); ctx.arc(x, y, DISC, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+      if (S.sel && S.sel.vehicle === v) {
+        ctx.strokeStyle = "#ffd27f"; ctx.lineWidth = 2;
+        ctx.beginPath(); ctx.arc(x, y, DISC + 4, 0, 2 * Math.PI); ctx.stroke();
+      }
+      items.push({ key: v, x, y, text: S.doc.positions ? `${v} (z ${p[2].toFixed(1)})` : v });
     }
+    drawLabels(items);
+  }
+  function drawLabels(items) {                      // SVG text over the map, placed apart (labels.js)
+    ctx.font = "12px sans-serif";
+    for (const it of items) { it.w = Math.ceil(ctx.measureText(it.text).width) + 8; it.h = 16; }
+    const sig = items.map((it) => `${it.key} ${it.x.toFixed(1)} ${it.y.toFixed(1)} ${it.w}`).join("\n");
+    const placed = sig === S.labelSig ? S.labelBoxes : window.uwsimnetLabels.place(items, DISC, canvas.width, canvas.height);
+    S.labelSig = sig;                               // nothing moved: the same places (placing 256 labels takes ~15 ms)
+    const svg = $("labels"), NS = "http://www.w3.org/2000/svg";
+    const have = new Map([...svg.children].map((g) => [g.dataset.vehicle, g]));
+    for (const it of items) {
+      let g = have.get(it.key);
+      if (!g) {
+        g = document.createElementNS(NS, "g");
+        g.setAttribute("class", "label");
+        g.dataset.vehicle = it.key;
+        g.append(document.createElementNS(NS, "line"), document.createElementNS(NS, "rect"),
+          document.createElementNS(NS, "text"));
+        g.addEventListener("click", () => select({ vehicle: g.dataset.vehicle }));
+        svg.append(g);
+      }
+      have.delete(it.key);
+      const { box: [bx, by, bw, bh], leader } = placed[it.key];
+      const [ln, rc, tx] = g.children;
+      for (const [k, val] of [["x", bx], ["y", by], ["width", bw], ["height", bh]]) rc.setAttribute(k, val.toFixed(1));
+      tx.setAttribute("x", (bx + 4).toFixed(1)); tx.setAttribute("y", (by + 12).toFixed(1));
+      if (tx.textContent !== it.text) tx.textContent = it.text;
+      const ex = Math.max(bx, Math.min(it.x, bx + bw)), ey = Math.max(by, Math.min(it.y, by + bh));
+      const len = Math.hypot(ex - it.x, ey - it.y) || 1, sx = it.x + (ex - it.x) / len * DISC, sy = it.y + (ey - it.y) / len * DISC;
+      ln.setAttribute("visibility", leader ? "visible" : "hidden");
+      for (const [k, val] of [["x1", sx], ["y1", sy], ["x2", ex], ["y2", ey]]) ln.setAttribute(k, val.toFixed(1));
+      g.setAttribute("class", S.sel && S.sel.vehicle === it.key ? "label sel" : "label");
+    }
+    for (const g of have.values()) g.remove();
+    S.labelBoxes = placed;
   }
   function drawFrames(T) {
     for (const f of framesNear(T)) {
@@ -319,6 +374,7 @@
     for (const [id, d] of Object.entries(S.doc.devices).sort()) {
       const tr = document.createElement("tr");
       tr.dataset.dev = id;
+      tr.addEventListener("click", () => select({ dev: id }));
       const kind = d.kind == null ? "none" : d.kind;
       const badge = el("span", "badge " + (["sim", "real", "none"].includes(kind) ? kind : "other"), kind);
       tr.append(Object.assign(el("td", "", id), { title: `vehicle ${d.vehicle}` }), el("td", "kind", badge),
@@ -357,9 +413,97 @@
       st.outs.forEach(([dev, o], j) => li.append(j ? ", " : "", el("span", `o-${COLORS[o] ? o : "other"}`, `${dev} ${o}`)));
       items.push(li);
     }
-    const sig = items.map((li) => li.textContent + li.dataset.state).join("\n");
+    const cur = S.evIdx >= 0 && S.evAll[S.evIdx][0] === T ? eventFrame(S.evAll[S.evIdx]) : null;
+    for (const li of items) if (cur && +li.dataset.id === cur.id) li.className = "cur";
+    const sig = items.map((li) => li.textContent + li.dataset.state + li.className).join("\n");
     if (sig !== S.listSig) { S.listSig = sig; $("frames").replaceChildren(...items); }   // unchanged: clickable
     $("clock").textContent = `t = ${T.toFixed(3)} s`;
+    if (S.evIdx >= 0 && S.evAll[S.evIdx][0] !== T) { S.evIdx = -1; $("stepinfo").textContent = ""; }
+    for (const tr of $("modems").tBodies[0].rows) tr.className = S.sel && S.sel.devs.includes(tr.dataset.dev) ? "sel" : "";
+    const moving = S.playing || (S.mode === "live" && S.follow);
+    if (S.sel && (S.sel.T !== T || S.sel.n !== S.updates) && (!moving || !(performance.now() - S.sel.at < 250))) {
+      S.sel.T = T; S.sel.n = S.updates; S.sel.at = performance.now();   // while time runs: 4 times a second
+      $("detail").textContent = S.sel.link ? linkDetail(...S.sel.link, T)
+        : S.sel.devs.map((dev) => modemDetail(dev, T)).join("\n\n") || `vehicle ${S.sel.vehicle}: no modem`;
+    }
+  }
+
+  // -- a modem's details (a click on its vehicle, its label or its row) ----------------------------
+  function select(sel) {
+    if (sel.link) { S.sel = { link: sel.link, devs: [] }; return; }
+    const devs = sel.dev != null ? [sel.dev]
+      : Object.keys(S.doc.devices).filter((k) => S.doc.devices[k].vehicle === sel.vehicle).sort();
+    S.sel = { vehicle: sel.vehicle ?? (S.doc.devices[sel.dev] || {}).vehicle, devs };
+  }
+  function linkDetail(tx, rx, T) {                 // a link: what colours it, from the model and from the trace
+    const d = S.doc.devices[tx] || {}, p = devPos(tx, T), q = devPos(rx, T);
+    const dist = p && q ? Math.hypot(p[0] - q[0], p[1] - q[1], p[2] - q[2]) : null;
+    const series = d.links && d.links[rx], m = S.links.loss(tx, rx, T), outs = {};
+    for (let k = lastAtOrBefore(S.frames, T, (f) => f.t); k >= 0; k--) {
+      const f = S.frames[k], o = f.dev === tx && f.outcomes[rx];
+      if (o && o.t <= T) outs[o.outcome] = (outs[o.outcome] || 0) + 1;
+    }
+    const fx = (v, n) => (v == null ? "unknown" : (+v).toFixed(n));
+    const model = series && series.length ? `${fx(seriesAt(series, T), 3)} at both ends' positions` +
+      (series.some((e) => e[2] != null) ? `, received level ${fx(seriesAt(series, T, 2), 1)} dB` : "")
+      : dist != null && d.per ? `${fx(perAt(d, dist), 3)} at ${dist.toFixed(1)} m` : "unknown";
+    return [`link ${tx} → ${rx} at t = ${T.toFixed(3)} s` + (dist != null && S.doc.positions ? `, ${dist.toFixed(1)} m` : ""),
+      `  modelled PER (frame of ${d.link_size ?? "?"} B on air): ${model}`,
+      `  measured loss: ` + (m ? `${fx(m.loss, 3)} (${m.got} of the last ${m.n} delivered)` : "no outcome yet"),
+      `  outcomes up to t: ${Object.entries(outs).sort().map(([k, n]) => `${k} ${n}`).join(", ") || "none"}`].join("\n");
+  }
+  function modemDetail(dev, T) {                   // text only: every value is data, never markup (#41)
+    const d = S.doc.devices[dev] || {}, st = devState(dev, T), p = d.vehicle != null ? posAt(d.vehicle, T) : null;
+    const drops = {}, sent = { data: 0, ctrl: 0 }, outs = {}, heard = {};
+    for (const e of S.evByDev.get(dev) || []) {
+      if (e[0] > T) break;
+      if (e[2] === "drop") drops[e[3]] = (drops[e[3]] || 0) + 1;
+    }
+    for (let k = lastAtOrBefore(S.frames, T, (f) => f.t); k >= 0; k--) {
+      const f = S.frames[k];
+      if (f.dev === dev) sent[f.kind] = (sent[f.kind] || 0) + 1;
+      for (const [rid, o] of Object.entries(f.outcomes)) {
+        if (o.t > T) continue;
+        if (f.dev === dev) outs[o.outcome] = (outs[o.outcome] || 0) + 1;
+        if (rid === dev) heard[o.outcome] = (heard[o.outcome] || 0) + 1;
+      }
+    }
+    const list = (m) => Object.entries(m).sort().map(([k, n]) => `${k} ${n}`).join(", ") || "none";
+    return [`modem ${dev} (${d.kind ?? "none"})`,
+      `  address ${d.address ?? "?"} · vehicle ${d.vehicle ?? "?"} · MAC ${d.mac ?? "?"} · ${d.bitrate ?? "?"} bps` +
+        ` · channel tx ${d.tx_channel ?? "?"} rx ${d.rx_channel ?? "?"}`,
+      `  position at t = ${T.toFixed(3)} s: ` + (p && S.doc.positions ? `(${p.map((x) => x.toFixed(2)).join(", ")}) m` : "unknown"),
+      `  trace up to t: enq ${st.enq}, tx ${st.tx}, rx ${st.rx}, drop ${st.drop}; FIFO ${st.fifo} B` +
+        (d.fifo_capacity ? ` of ${d.fifo_capacity}` : ""),
+      `  drops here by reason: ${list(drops)}`,
+      `  frames sent: ${list(sent)}; their outcomes: ${list(outs)}`,
+      `  frames heard, by outcome: ${list(heard)}`].join("\n");
+  }
+
+  // -- event stepping -------------------------------------------------------------------------------
+  function eventFrame(e) {                          // the transmission an event row belongs to, or null
+    const [t, dev, ev, , , , , , , src, seq, kind] = e;
+    if (ev === "enq" || seq == null) return null;
+    for (let k = lastAtOrBefore(S.frames, t, (f) => f.t); k >= 0; k--) {
+      const f = S.frames[k];
+      if (f.src === src && f.seq === seq && f.kind === kind && (ev === "tx" ? f.dev === dev && f.t === t : true)) return f;
+      if (t - f.t > S.maxDelay + 1) break;
+    }
+    return null;
+  }
+  function step(dir) {
+    const a = S.evAll;
+    if (!a.length) return;
+    let i;
+    if (S.evIdx >= 0 && a[S.evIdx][0] === S.T) i = S.evIdx + dir;
+    else i = dir > 0 ? lastAtOrBefore(a, S.T, (e) => e[0]) + 1 : lastAtOrBefore(a, S.T, (e) => e[0], true);
+    i = Math.max(0, Math.min(a.length - 1, i));
+    const e = a[i];
+    S.evIdx = i; S.playing = false; S.follow = false;
+    $("play").textContent = "Play";
+    setT(e[0]);
+    $("stepinfo").textContent = `event ${i + 1} of ${a.length}: t = ${(+e[0]).toFixed(6)} s ${e[1]} ${e[2]}` +
+      `${e[3] ? " " + e[3] : ""}${e[10] != null ? ` #${e[10]} ${e[11] ?? ""} from ${e[9]}` : ""}`;
   }
   function ctlButtons() {                          // a message stays until the next one (never wiped by updates)
     const can = S.mode === "live" && !!S.doc.control;
@@ -376,6 +520,7 @@
     if (document.activeElement !== sl || S.playing) sl.value = T;
   }
   function tick() {
+    requestAnimationFrame(tick);                    // first: a frame that throws (bad data) never stops the page
     const now = performance.now() / 1000;
     const dt = S.lastWall == null ? 0 : now - S.lastWall;
     S.lastWall = now;
@@ -399,7 +544,6 @@
       draw();
       panels(S.T);
     }
-    requestAnimationFrame(tick);
   }
 
   // -- wiring --------------------------------------------------------------------------------------
@@ -417,15 +561,48 @@
     const r = canvas.getBoundingClientRect();
     zoomAt(Math.exp(-e.deltaY * 0.0015), (e.clientX - r.left) * canvas.width / r.width, (e.clientY - r.top) * canvas.height / r.height);
   }, { passive: false });
-  let drag = null;
-  canvas.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; });
-  window.addEventListener("mouseup", () => { drag = null; });
+  let drag = null, moved = 0;
+  canvas.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; moved = 0; });
+  window.addEventListener("mouseup", (e) => {
+    if (drag && moved < 4 && e.target === canvas) {   // a click, not a drag: the vehicle under it, if any
+      const r = canvas.getBoundingClientRect();
+      const x = (e.clientX - r.left) * canvas.width / r.width, y = (e.clientY - r.top) * canvas.height / r.height;
+      let best = null, bd = DISC + 3;
+      for (const v of Object.keys(S.doc.vehicles)) {
+        const p = posAt(v, S.T);
+        if (!p) continue;
+        const q = toPx(p), dd = Math.hypot(q[0] - x, q[1] - y);
+        if (dd <= bd) { best = v; bd = dd; }
+      }
+      if (best != null) select({ vehicle: best });
+      else {                                         // else the link under it (the nearest within 5 px)
+        let bl = null, bd2 = 5;
+        for (const [tx, rx, a, b] of S.drawn || []) {
+          const L2 = (b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2 || 1;
+          const u = Math.max(0, Math.min(1, ((x - a[0]) * (b[0] - a[0]) + (y - a[1]) * (b[1] - a[1])) / L2));
+          const dd = Math.hypot(a[0] + u * (b[0] - a[0]) - x, a[1] + u * (b[1] - a[1]) - y);
+          if (dd <= bd2) { bl = [tx, rx]; bd2 = dd; }
+        }
+        if (bl) select({ link: bl });
+      }
+    }
+    drag = null;
+  });
   window.addEventListener("mousemove", (e) => {
     if (!drag) return;
     const r = canvas.getBoundingClientRect();
+    moved += Math.abs(e.clientX - drag[0]) + Math.abs(e.clientY - drag[1]);
     V.dx += (e.clientX - drag[0]) * canvas.width / r.width; V.dy += (e.clientY - drag[1]) * canvas.height / r.height;
     drag = [e.clientX, e.clientY];
   });
+  $("prev").addEventListener("click", () => step(-1));
+  $("next").addEventListener("click", () => step(1));
+  document.addEventListener("keydown", (e) => {      // , . and the arrows step by event (not while typing)
+    if (e.target.closest && e.target.closest("input, select, textarea")) return;
+    const dir = { ",": -1, ArrowLeft: -1, ".": 1, ArrowRight: 1 }[e.key];
+    if (dir && !e.ctrlKey && !e.metaKey && !e.altKey) { e.preventDefault(); step(dir); }
+  });
+  $("linkby").addEventListener("change", (e) => { S.linkBy = e.target.value; linkMode(); });
   $("zoomin").addEventListener("click", () => zoomAt(1.5, canvas.width / 2, canvas.height / 2));
   $("zoomout").addEventListener("click", () => zoomAt(1 / 1.5, canvas.width / 2, canvas.height / 2));
   $("fit").addEventListener("click", () => { V.zoom = 1; V.dx = 0; V.dy = 0; });
@@ -433,6 +610,7 @@
     const li = e.target.closest("li"), f = li && S.framesById.get(+li.dataset.id);
     if (!f) return;
     const outs = Object.entries(f.outcomes).map(([d, o]) => `  ${d}: ${o.outcome} at ${(+o.t).toFixed(6)} s`);
+    S.sel = null;
     $("detail").textContent = [`frame ${f.dev} → ${f.dst} #${f.seq} ${f.kind} (try ${f.attempt}), channel ${f.ch}`,
       `sent at ${(+f.t).toFixed(6)} s`, "outcomes:", ...(outs.length ? outs : ["  none yet"])].join("\n");
   });
@@ -489,6 +667,12 @@
       return null;
     },
     counters: (dev) => devState(dev, S.T),
+    link: (tx, rx) => {                              // what the link tx -> rx is coloured by at the time shown
+      const d = S.doc.devices[tx], p = devPos(tx, S.T), q = devPos(rx, S.T);
+      const dist = p && q ? Math.hypot(p[0] - q[0], p[1] - q[1], p[2] - q[2]) : null;
+      return { by: S.linkBy, value: d && dist != null ? linkLoss(tx, rx, d, dist, S.T) : null,
+        measured: S.links.loss(tx, rx, S.T) };
+    },
     setTime: (T) => { S.playing = false; S.follow = false; setT(T); },
     play: (speed) => { S.speed = speed || S.speed; S.playing = true; },
   };
