@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..trace.events import finite
+from . import sidecar
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes" / "paper"
 PROTOCOLS: dict[str, tuple[str, str]] = {     # key: (macProtocol name, label in figures and tables)
@@ -358,6 +359,8 @@ def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PRO
     if profile != "default":
         title = f"TWINBOT scene, profile {profile}: MAC comparison per flow (paper Fig. 7)"
     figs = plot_compare(metrics, out, title=title)
+    for f in figs:
+        sidecar.write(f, fig7_numbers(summary["runs"], profile))
     summary["figures"] = [str(f) for f in figs]
     summary["compare_table"] = compare_markdown(metrics)
     for v in variants:
@@ -371,11 +374,38 @@ def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PRO
             flows, runs[p] = _run_one(p, scene, vdir / f"{p}.trace.jsonl", progress, profile)
             vmetrics[PROTOCOLS[p][1]] = flows
         figs = plot_compare(vmetrics, vdir, title=f"TWINBOT scene, variant {v}: {what}")
+        for f in figs:
+            sidecar.write(f, fig7_numbers(runs, profile, v))
         summary["variants"][v] = {"what": what, "runs": runs, "figures": [str(f) for f in figs]}
     (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     (out / "summary.md").write_text(markdown(summary))
     (out / "table1.md").write_text(table1(summary["runs"]))
     return summary
+
+
+def fig7_numbers(runs: dict, profile: str, variant: str | None = None) -> dict:
+    """What a Fig. 7 shows and docs/paper-twinbot.md states of it, per protocol: per flow the throughput
+    (configured, offered), efficiency, delay and jitter; per channel the efficiency, data transmissions and
+    collision events; the retry and FIFO drops, the frames in flight at the end (the figure's sidecar)."""
+    chan_of = {f.name: f.channel for f in FLOWS}
+    out: dict = {"profile": profile, "variant": variant, "protocols": {}}
+    for p, r in runs.items():
+        fl = r["flows"]
+        per_ch = {}
+        for ch, name in ((RF, "rf"), (ACOUSTIC, "acoustic")):
+            fs = [f for n, f in fl.items() if chan_of.get(n) == ch]
+            per_ch[name] = {"efficiency": r[f"efficiency_{name}"], "sent": sum(f["sent"] for f in fs),
+                            "unique_sent": sum(f["unique_sent"] for f in fs),
+                            "collisions": sum(f["data_drop_events"].get("col", 0) + f["data_drop_events"].get("mult", 0)
+                                              for f in fs)}
+        out["protocols"][p] = {
+            "label": r["label"], "channels": per_ch, "in_flight": r["in_flight"],
+            "conservation_violations": len(r["conservation_violations"]),
+            "retry_drops": sum(f["drops"].get("retry", 0) for f in fl.values()),
+            "fifo_drops": sum(f["drops"].get("fifo", 0) for f in fl.values()),
+            "flows": {n: {k: f[k] for k in ("throughput", "configured", "offered", "efficiency", "delay_mean",
+                                            "jitter", "enqueued", "delivered")} for n, f in fl.items()}}
+    return out
 
 
 def _num(v: float | None, digits: int = 1) -> str:
