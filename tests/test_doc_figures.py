@@ -8,13 +8,15 @@ saturation search and the real-time runs (minutes) are not, their sidecars are c
 
 from __future__ import annotations
 
+import json
+import re
 from pathlib import Path
 
 import pytest
 
 from uwsimnet_zenoh.analysis.figures import figure_numbers
-from uwsimnet_zenoh.analysis.intervals import label, mean_ci, ratio_ci
-from uwsimnet_zenoh.experiments import doc_figures, hil_formation, sidecar, table1
+from uwsimnet_zenoh.analysis.intervals import Interval, label, mean_ci, ratio_ci
+from uwsimnet_zenoh.experiments import doc_figures, hil_formation, sidecar, table1, twinbot
 from uwsimnet_zenoh.experiments.phy_layer import DOC_FIGURES
 from uwsimnet_zenoh.experiments.phy_layer import doc_figures as phy_doc_figures
 
@@ -104,5 +106,70 @@ def test_the_hil_model_rows_and_the_over_seeds_tables_are_what_the_model_gives_n
         for mac in ("aloha", "sfama"):
             now = hil_formation.stats(hil_formation.simulate(mac, traffic=traffic))["timing"]
             assert sidecar._rounded(now) == committed["virtual"][mac]["timing"], (traffic, mac)
-        for text in doc_figures.hil_seeds_tables(hil_formation.over_seeds(traffic, hil_formation.DURATION)):
+        seeds = hil_formation.over_seeds(traffic, hil_formation.DURATION)
+        for text in doc_figures.hil_seeds_tables(seeds):
             assert text in page, f"{traffic}: not in docs/paper-hil.md:\n{text}"
+        iv = mean_ci(seeds["ratio_followers"])       # "comparable performance": a ratio of 1 is the paper's claim
+        assert label(iv, 1.0) == "not" and f"{iv.mean:.2f} ± {iv.half:.2f}" in page, (traffic, iv)
+
+
+def test_the_numbers_over_seeds_are_the_figures_runs_and_a_new_run():
+    """figures/paper-twinbot-seeds.json (what the findings are labelled against): its seed 1 is the run of each
+    profile's Fig. 7 (the committed sidecars), and seed 3 of each profile is what a new run gives."""
+    seeds = json.loads((DOCS / doc_figures.SEEDS_FILE).read_text(encoding="utf-8"))
+    assert list(seeds) == ["default", "original"]
+    for profile, fig in (("default", "paper-twinbot-fig7.png"), ("original", "paper-twinbot-fig7-original.png")):
+        assert seeds[profile]["seeds"] == list(doc_figures.TWINBOT_SEEDS)
+        cells = seeds[profile]["protocols"]
+        for p, r in sidecar.read(DOCS / fig)["protocols"].items():
+            for n, f in r["flows"].items():
+                for m in twinbot.SEED_METRICS:
+                    assert cells[p][f"{n}/{m}"]["values"][0] == f[m], (profile, p, n, m)
+        now = twinbot.over_seeds([3], profile)["protocols"]
+        for p, c in now.items():
+            for k, v in c.items():
+                assert sidecar._rounded(v["values"])[0] == cells[p][k]["values"][2], (profile, p, k)
+
+
+def test_the_labels_follow_from_the_intervals():
+    """Each label of the tables is `label` (or the ordering rule) of the intervals printed beside it, re-read from
+    the page's text: a label cannot disagree with the numbers it stands next to."""
+    page = _page("paper-twinbot.md")
+    cells = re.findall(r"\| ([-\d.]+) ± ([\d.]+) of ([\d.]+): (reproduced|not) ", page)
+    assert len(cells) >= 32
+    for mean, half, paper, lab in cells:
+        assert label(Interval(10, float(mean), float(half)), float(paper)) == lab, (mean, half, paper, lab)
+    rf = {"leader", "follower", "support"}
+    flows = ["leader", "follower", "support", "buoy", "E0", "E1", "E2", "E3"]
+    checked = 0
+    for line in page.splitlines():
+        row = [c.strip() for c in line.strip("|").split("|")]
+        if len(row) != 10 or row[0] not in ("default", "original") or row[1] not in ("efficiency", "delay s",
+                                                                                        "jitter s"):
+            continue
+        for flow, cell in zip(flows, row[2:], strict=True):
+            m = re.fullmatch(r"([-\d.]+) ± ([\d.]+) / ([-\d.]+) ± ([\d.]+): (reproduced|not established|not)", cell)
+            assert m, cell
+            a_lo, a_hi = float(m[1]) - float(m[2]), float(m[1]) + float(m[2])      # CS-ALOHA
+            s_lo, s_hi = float(m[3]) - float(m[4]), float(m[3]) + float(m[4])      # S-FAMA
+            if row[1] == "jitter s":                                               # "comparable": they overlap
+                want = "reproduced" if a_lo <= s_hi and s_lo <= a_hi else "not"
+            else:       # S-FAMA lower delay; higher efficiency on the acoustic channel, lower on the RF one
+                s_below = row[1] == "delay s" or flow in rf
+                ok, wrong = (s_hi < a_lo, a_hi < s_lo) if s_below else (a_hi < s_lo, s_hi < a_lo)
+                want = "reproduced" if ok else "not" if wrong else "not established"
+            assert m[5] == want, (row[0], row[1], flow, cell)
+            checked += 1
+    assert checked == 2 * 3 * 8
+
+
+def test_the_phy_layer_labels_follow_from_their_intervals():
+    """docs/paper-phy-layer.md: each distance bin's "inside" is whether the BER expression's PER lies in the bin's
+    Wilson interval, and the ≈430 ms peak is labelled against its (zero-width: no random draw) interval."""
+    page = _page("paper-phy-layer.md")
+    rows = re.findall(r"\| [\d.]+-[\d.]+ \| \d+ \| [\d.]+ \| ([\d.]+) - ([\d.]+) \| ([\d.]+) \| (yes|no) \|", page)
+    assert len(rows) == 8
+    for lo, hi, expected, inside in rows:
+        assert (float(lo) <= float(expected) <= float(hi)) == (inside == "yes")
+    row = next(line for line in page.splitlines() if line.startswith("| delay rises to ≈430 ms"))
+    assert label(Interval(10, 252.8, 0.0), 430.0) == "not" and "252.8 ± 0" in row and "the value **not**" in row

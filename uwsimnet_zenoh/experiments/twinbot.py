@@ -312,14 +312,16 @@ VARIANTS: dict[str, tuple[str, tuple[str, ...], dict]] = {
 }
 
 
-def _run_one(protocol: str, scene, trace: Path, progress: bool, profile: str = "default") -> tuple[dict, dict]:
-    """Run one scene (with the profile's overrides); (per-receiver flow metrics, summary of the run)."""
+def _run_one(protocol: str, scene, trace: Path, progress: bool, profile: str = "default",
+             seed: int | None = None) -> tuple[dict, dict]:
+    """Run one scene (with the profile's overrides; `seed`: the scene's unless given); (per-receiver flow
+    metrics, summary of the run)."""
     from ..analysis import analyse
     from ..app.overrides import apply
     from ..app.virtual import run_virtual
 
     scene = apply(scene, profile_overrides(protocol, profile))
-    run_virtual(scene, seed=None, duration=None, trace_path=trace, progress=progress)
+    run_virtual(scene, seed=seed, duration=None, trace_path=trace, progress=progress)
     a = analyse(trace)
     flows = per_receiver(a.flows, profile)
     summary = {
@@ -336,6 +338,40 @@ def _run_one(protocol: str, scene, trace: Path, progress: bool, profile: str = "
                   for n, m in flows.items()},
     }
     return flows, summary
+
+
+SEED_METRICS = ("throughput", "efficiency", "delay_mean", "jitter")
+
+
+def over_seeds(seeds: list[int] | tuple[int, ...], profile: str = "default") -> dict:
+    """Fig. 7's numbers for each seed and their 95 % t intervals, per protocol: per flow (broadcast per receiver)
+    the SEED_METRICS, and each channel's efficiency.  What the findings of docs/paper-twinbot.md are labelled
+    against; the original profile has no campaign file, so this runs the scene files with the profile's
+    overrides (a few seconds per seed)."""
+    import tempfile
+
+    from ..analysis.intervals import mean_ci
+    from ..scene.load import load_scene
+
+    out: dict = {"profile": profile, "seeds": list(seeds), "protocols": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        for p in PROTOCOLS:
+            scene = load_scene(scene_path(p), on_warning=lambda *_: None)
+            vals: dict[str, list] = {}
+            for seed in seeds:
+                _, s = _run_one(p, scene, Path(tmp) / f"{p}.trace.jsonl", False, profile, seed)
+                for n, f in s["flows"].items():
+                    for m in SEED_METRICS:
+                        vals.setdefault(f"{n}/{m}", []).append(f[m])
+                for ch in ("rf", "acoustic"):
+                    vals.setdefault(f"channel/efficiency_{ch}", []).append(s[f"efficiency_{ch}"])
+            cells = {}
+            for k, v in vals.items():
+                iv = mean_ci([x for x in v if x is not None])
+                cells[k] = {"values": v, "mean": None if iv is None else iv.mean,
+                            "half": None if iv is None else iv.half}
+            out["protocols"][p] = cells
+    return out
 
 
 def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PROTOCOLS),
