@@ -173,3 +173,15 @@ def test_the_phy_layer_labels_follow_from_their_intervals():
         assert (float(lo) <= float(expected) <= float(hi)) == (inside == "yes")
     row = next(line for line in page.splitlines() if line.startswith("| delay rises to ≈430 ms"))
     assert label(Interval(10, 252.8, 0.0), 430.0) == "not" and "252.8 ± 0" in row and "the value **not**" in row
+
+
+def test_every_figure_a_paper_page_shows_has_a_command_and_its_numbers():
+    """Each docs/figures/*.png that a docs/paper-*.md links or embeds is drawn by one of the commands (phy_layer's or
+    doc_figures') and carries its numbers (in the PNG or a sidecar)."""
+    shown = {m for page in PAGES.glob("paper-*.md")
+             for m in re.findall(r"figures/([a-z0-9-]+\.png)", page.read_text(encoding="utf-8"))}
+    made = {*DOC_FIGURES.values(), *doc_figures.TWINBOT_FIGURES.values(), *doc_figures.TABLE1_FIGURES.values(),
+            *doc_figures.HIL_FIGURES.values()}
+    assert shown == made
+    for name in shown:
+        assert figure_numbers(DOCS / name) or sidecar.read(DOCS / name), name
