@@ -185,3 +185,22 @@ def test_every_figure_a_paper_page_shows_has_a_command_and_its_numbers():
     assert shown == made
     for name in shown:
         assert figure_numbers(DOCS / name) or sidecar.read(DOCS / name), name
+
+
+def test_the_phy_layer_stages_over_seeds_and_their_labels():
+    """The RF run over seeds 1-10 per stage (a few seconds): the page's table is what it gives now, and the findings
+    'both attenuation and collisions at 4.5 m' and 'only collisions at 3.3 m' follow from its intervals."""
+    from uwsimnet_zenoh.app.api import run as run_one
+    from uwsimnet_zenoh.experiments import phy_layer
+
+    rf = phy_layer.reading_scene("rf")
+    rows = phy_layer.stages_over_seeds([phy_layer.phases(run_one(rf, seed=s, trace=True).trace or [])
+                                        for s in range(1, 11)])
+    assert phy_layer.stages_table(rows) in _page("paper-phy-layer.md")
+    cell = {(r["flow"], r["stage"]): {k: Interval(10, r[k]["mean"], r[k]["half"]) for k in phy_layer.STAGE_COUNTS}
+            for r in rows}
+    at45 = cell[("rov0-to-rov1", "both send, 4.5 m")]
+    assert all(at45[k].low > 0 for k in ("prop", "col", "mult"))
+    for flow in ("rov0-to-rov1", "rov1-to-rov0"):
+        at33 = cell[(flow, "both send, 3.3 m")]
+        assert label(at33["prop"], 0.0) == "reproduced" and at33["col"].low > 0
