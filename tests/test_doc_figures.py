@@ -204,3 +204,13 @@ def test_the_phy_layer_stages_over_seeds_and_their_labels():
     for flow in ("rov0-to-rov1", "rov1-to-rov0"):
         at33 = cell[(flow, "both send, 3.3 m")]
         assert label(at33["prop"], 0.0) == "reproduced" and at33["col"].low > 0
+
+
+def test_the_command_refuses_what_it_does_not_know():
+    """A wrong sub-command is a one-line usage error, exit 2, no traceback."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.experiments.doc_figures", "figures"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stdout == "" and r.stderr.count("\n") == 1 and r.stderr.startswith("usage:")
