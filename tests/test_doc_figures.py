@@ -214,3 +214,23 @@ def test_the_command_refuses_what_it_does_not_know():
     r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.experiments.doc_figures", "figures"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and r.stdout == "" and r.stderr.count("\n") == 1 and r.stderr.startswith("usage:")
+
+
+def _signed(x: str) -> float:
+    return float(x.replace("−", "-").replace("+", ""))
+
+
+def test_the_hil_real_time_intervals_are_those_of_the_runs_listed():
+    """docs/paper-hil.md gives every real-time run's value beside its interval (real time can not be re-run number
+    for number): each interval is the t interval of the values listed, each label what it says of the claim."""
+    page = _page("paper-hil.md")
+    rows = re.findall(r"\| (CS-ALOHA|S-FAMA) \| (leader|followers) \| ([-+−\d.]+) \| ([-+−\d.]+) \| ([-+−\d.]+) \| "
+                      r"([-+−\d.]+) \| ([-+−\d.]+) \| \**([-+−\d.]+) ± ([\d.]+)\**", page)
+    assert len(rows) == 4
+    for *_, a, b, c, d, e, mean, half in rows:
+        iv = mean_ci([_signed(x) for x in (a, b, c, d, e)])
+        assert (f"{iv.mean:.2f}", f"{iv.half:.2f}") == (f"{_signed(mean):.2f}", half)
+    for listed, stated, lab in (("2.13, 1.73, 1.93, 2.16, 1.51", "1.89 ± 0.34", "not"),
+                                ("1.12, 1.21, 1.31", "1.21 ± 0.24", "reproduced")):
+        iv = mean_ci([float(x) for x in listed.split(", ")])
+        assert f"{iv.mean:.2f} ± {iv.half:.2f}" == stated and stated in page and label(iv, 1.0) == lab
