@@ -32,6 +32,7 @@ from typing import Any
 
 from ..kernel.frame import BROADCAST
 from ..trace.events import Callback, finite
+from . import sidecar
 from .hil_spec import (
     DEFAULT_TRAFFIC,
     DEPTH,
@@ -398,6 +399,9 @@ def run(out: Path, *, duration: float = DURATION, traffic: str = DEFAULT_TRAFFIC
     lines = table(st, f"HIL formation (virtual time, seed {seeds[0]}, traffic '{traffic}'): waypoint distance error")
     lines += ["", *timing_table({mac: r["timing"] for mac, r in results.items()}), "", *seeds_table(multi)]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    (out / "summary.json").write_text(json.dumps(finite({"virtual": st, "seeds": multi, "traffic": traffic}),
-                                                 indent=2, allow_nan=False))
+    summary = finite({"virtual": st, "seeds": multi, "traffic": traffic})
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False))
+    for path in (out / "fig9-hil-formation.png", figure):
+        if path is not None:
+            sidecar.write(path, summary)
     return st

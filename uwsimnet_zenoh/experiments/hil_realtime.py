@@ -38,6 +38,7 @@ from ..errors import UserError
 from ..trace.events import finite
 from . import hil_formation as h
 from . import hil_spec as spec
+from . import sidecar
 from .processes import PY, ProcessError, Processes, Progress
 
 TICK = 0.1
@@ -179,4 +180,7 @@ def run(out: Path, *, duration: float = spec.DURATION, speed: float = 1.0, traff
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     summary = {"realtime": st, "virtual": st_model, "duration": duration, "speed": speed, "traffic": traffic}
     (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
+    for path in (out / "fig9-hil-formation.png", figure):
+        if path is not None:
+            sidecar.write(path, finite(summary))      # the numbers docs/paper-hil.md states of the figure
     return st

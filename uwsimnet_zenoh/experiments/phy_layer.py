@@ -133,6 +133,36 @@ def phases(recs: list[dict]) -> list[dict]:
     return rows
 
 
+STAGE_COUNTS = ("rx", "prop", "col", "mult")
+
+
+def stages_over_seeds(per_seed: list[list[dict]]) -> list[dict]:
+    """`phases` of several seeds' runs, per flow and stage: each count's mean and 95 % t interval (what the
+    findings of docs/paper-phy-layer.md are labelled against)."""
+    from ..analysis.intervals import mean_ci
+
+    out = []
+    for i, row in enumerate(per_seed[0]):
+        cell = {"flow": row["flow"], "stage": row["stage"], "from_s": row["from_s"], "to_s": row["to_s"]}
+        for k in STAGE_COUNTS:
+            vals = [rows[i][k] for rows in per_seed]
+            iv = mean_ci(vals)
+            cell[k] = {"values": vals, "mean": iv.mean, "half": iv.half}
+        out.append(cell)
+    return out
+
+
+def stages_table(rows: list[dict]) -> str:
+    """`stages_over_seeds` as docs/paper-phy-layer.md's table (mean ± half-width of the 95 % t interval)."""
+    from ..analysis.intervals import Interval
+
+    lines = ["| flow | stage | rx | prop | col | mult |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        cells = [Interval(len(r[k]["values"]), r[k]["mean"], r[k]["half"]).text() for k in STAGE_COUNTS]
+        lines.append(f"| {r['flow']} | {r['stage']} ({r['from_s']:g}-{r['to_s']:g} s) | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def delay_formula(scene: Scene, flow_name: str) -> Callable[[float], float]:
     """The modelled delay of a frame of `flow_name` over d metres with no queueing, from the scene's own
     figures: tx intrinsic + propagation (min + per metre) + bytes on air / bitrate + rx intrinsic."""
@@ -310,8 +340,9 @@ def run(out: Path, progress: bool = True, seeds: list[int] | None = None, readin
         from ..app.api import run as run_one
 
         rf = reading_scene("rf", reading)
-        summary["rf"]["loss_over_seeds"] = loss_over_seeds([run_one(rf, seed=s, trace=True).trace or []
-                                                            for s in seeds])
+        per_seed = [run_one(rf, seed=s, trace=True).trace or [] for s in seeds]
+        summary["rf"]["loss_over_seeds"] = loss_over_seeds(per_seed)
+        summary["rf"]["stages_over_seeds"] = stages_over_seeds([phases(recs) for recs in per_seed])
     summary["compare"] = compare_readings()
     (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     (out / "summary.md").write_text(markdown(summary))
@@ -334,6 +365,9 @@ def markdown(s: dict) -> str:
         for r in rows:
             lines.append(f"| {r['bin_m']} | {r['frames']} | {r['observed_per']:.4f} | {r['ci95'][0]:.4f} -"
                          f" {r['ci95'][1]:.4f} | {r['expected_per']:.4f} | {'yes' if r['inside'] else 'no'} |")
+    if "stages_over_seeds" in s["rf"]:
+        lines += ["", "## Frames per stage over the same seeds (mean ± 95 % t interval)", "",
+                  stages_table(s["rf"]["stages_over_seeds"])]
     for variant in ("rf", "acoustic"):
         lines += ["", f"## Outcomes by stage ({variant})", "",
                   "| flow | stage | rx | prop | col | mult | range | fifo |", "|---|---|---|---|---|---|---|---|"]

@@ -15,8 +15,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..analysis.intervals import mean_ci
-from . import twinbot
+from ..analysis.intervals import label, mean_ci, ratio_ci
+from . import sidecar, twinbot
 
 TOLERANCE = 0.05
 MAX_DELAY = 30.0        # s: a queue that grows over 600 s exceeds it; a 400 B exchange takes ~2 s
@@ -95,7 +95,27 @@ def plot(res: dict, out: Path) -> Path:
     fig.tight_layout()
     path = out / "table1-found.png"
     fig.savefig(path, dpi=110)
+    sidecar.write(path, numbers(res))
     return path
+
+
+def numbers(res: dict) -> dict:
+    """What table1-found.png shows and docs/paper-twinbot.md states of it: the maxima per seed with their
+    intervals, and the CS-ALOHA / S-FAMA ratio per channel as the interval of the per-seed ratios with the
+    label it gives the paper's ratio (analysis/intervals.py)."""
+    found = {p: {ch: {k: c[k] for k in ("per_seed_Bps", "mean_Bps", "half_Bps", "paper_Bps")}
+                 for ch, c in chans.items()} for p, chans in res["found"].items()}
+    out: dict = {"profile": res.get("profile", "default"), "seeds": res["seeds"], "tolerance": res["tolerance"],
+                 "max_delay": res["max_delay"], "found": found, "ratios": {}}
+    if all(p in found for p in PROTOCOLS):
+        for ch in GROUPS:
+            a, s = found["aloha"][ch]["per_seed_Bps"], found["sfama"][ch]["per_seed_Bps"]
+            seeds = [k for k in a if k in s]
+            iv = ratio_ci([a[k] for k in seeds], [s[k] for k in seeds])
+            paper = found["aloha"][ch]["paper_Bps"] / found["sfama"][ch]["paper_Bps"]
+            if iv is not None:
+                out["ratios"][ch] = {"mean": iv.mean, "half": iv.half, "paper": paper, "label": label(iv, paper)}
+    return out
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..trace.events import finite
+from . import sidecar
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes" / "paper"
 PROTOCOLS: dict[str, tuple[str, str]] = {     # key: (macProtocol name, label in figures and tables)
@@ -311,14 +312,16 @@ VARIANTS: dict[str, tuple[str, tuple[str, ...], dict]] = {
 }
 
 
-def _run_one(protocol: str, scene, trace: Path, progress: bool, profile: str = "default") -> tuple[dict, dict]:
-    """Run one scene (with the profile's overrides); (per-receiver flow metrics, summary of the run)."""
+def _run_one(protocol: str, scene, trace: Path, progress: bool, profile: str = "default",
+             seed: int | None = None) -> tuple[dict, dict]:
+    """Run one scene (with the profile's overrides; `seed`: the scene's unless given); (per-receiver flow
+    metrics, summary of the run)."""
     from ..analysis import analyse
     from ..app.overrides import apply
     from ..app.virtual import run_virtual
 
     scene = apply(scene, profile_overrides(protocol, profile))
-    run_virtual(scene, seed=None, duration=None, trace_path=trace, progress=progress)
+    run_virtual(scene, seed=seed, duration=None, trace_path=trace, progress=progress)
     a = analyse(trace)
     flows = per_receiver(a.flows, profile)
     summary = {
@@ -335,6 +338,40 @@ def _run_one(protocol: str, scene, trace: Path, progress: bool, profile: str = "
                   for n, m in flows.items()},
     }
     return flows, summary
+
+
+SEED_METRICS = ("throughput", "efficiency", "delay_mean", "jitter")
+
+
+def over_seeds(seeds: list[int] | tuple[int, ...], profile: str = "default") -> dict:
+    """Fig. 7's numbers for each seed and their 95 % t intervals, per protocol: per flow (broadcast per receiver)
+    the SEED_METRICS, and each channel's efficiency.  What the findings of docs/paper-twinbot.md are labelled
+    against; the original profile has no campaign file, so this runs the scene files with the profile's
+    overrides (a few seconds per seed)."""
+    import tempfile
+
+    from ..analysis.intervals import mean_ci
+    from ..scene.load import load_scene
+
+    out: dict = {"profile": profile, "seeds": list(seeds), "protocols": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        for p in PROTOCOLS:
+            scene = load_scene(scene_path(p), on_warning=lambda *_: None)
+            vals: dict[str, list] = {}
+            for seed in seeds:
+                _, s = _run_one(p, scene, Path(tmp) / f"{p}.trace.jsonl", False, profile, seed)
+                for n, f in s["flows"].items():
+                    for m in SEED_METRICS:
+                        vals.setdefault(f"{n}/{m}", []).append(f[m])
+                for ch in ("rf", "acoustic"):
+                    vals.setdefault(f"channel/efficiency_{ch}", []).append(s[f"efficiency_{ch}"])
+            cells = {}
+            for k, v in vals.items():
+                iv = mean_ci([x for x in v if x is not None])
+                cells[k] = {"values": v, "mean": None if iv is None else iv.mean,
+                            "half": None if iv is None else iv.half}
+            out["protocols"][p] = cells
+    return out
 
 
 def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PROTOCOLS),
@@ -358,6 +395,8 @@ def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PRO
     if profile != "default":
         title = f"TWINBOT scene, profile {profile}: MAC comparison per flow (paper Fig. 7)"
     figs = plot_compare(metrics, out, title=title)
+    for f in figs:
+        sidecar.write(f, fig7_numbers(summary["runs"], profile))
     summary["figures"] = [str(f) for f in figs]
     summary["compare_table"] = compare_markdown(metrics)
     for v in variants:
@@ -371,11 +410,38 @@ def run(out: Path, progress: bool = True, protocols: tuple[str, ...] = tuple(PRO
             flows, runs[p] = _run_one(p, scene, vdir / f"{p}.trace.jsonl", progress, profile)
             vmetrics[PROTOCOLS[p][1]] = flows
         figs = plot_compare(vmetrics, vdir, title=f"TWINBOT scene, variant {v}: {what}")
+        for f in figs:
+            sidecar.write(f, fig7_numbers(runs, profile, v))
         summary["variants"][v] = {"what": what, "runs": runs, "figures": [str(f) for f in figs]}
     (out / "summary.json").write_text(json.dumps(finite(summary), indent=2, allow_nan=False))
     (out / "summary.md").write_text(markdown(summary))
     (out / "table1.md").write_text(table1(summary["runs"]))
     return summary
+
+
+def fig7_numbers(runs: dict, profile: str, variant: str | None = None) -> dict:
+    """What a Fig. 7 shows and docs/paper-twinbot.md states of it, per protocol: per flow the throughput
+    (configured, offered), efficiency, delay and jitter; per channel the efficiency, data transmissions and
+    collision events; the retry and FIFO drops, the frames in flight at the end (the figure's sidecar)."""
+    chan_of = {f.name: f.channel for f in FLOWS}
+    out: dict = {"profile": profile, "variant": variant, "protocols": {}}
+    for p, r in runs.items():
+        fl = r["flows"]
+        per_ch = {}
+        for ch, name in ((RF, "rf"), (ACOUSTIC, "acoustic")):
+            fs = [f for n, f in fl.items() if chan_of.get(n) == ch]
+            per_ch[name] = {"efficiency": r[f"efficiency_{name}"], "sent": sum(f["sent"] for f in fs),
+                            "unique_sent": sum(f["unique_sent"] for f in fs),
+                            "collisions": sum(f["data_drop_events"].get("col", 0) + f["data_drop_events"].get("mult", 0)
+                                              for f in fs)}
+        out["protocols"][p] = {
+            "label": r["label"], "channels": per_ch, "in_flight": r["in_flight"],
+            "conservation_violations": len(r["conservation_violations"]),
+            "retry_drops": sum(f["drops"].get("retry", 0) for f in fl.values()),
+            "fifo_drops": sum(f["drops"].get("fifo", 0) for f in fl.values()),
+            "flows": {n: {k: f[k] for k in ("throughput", "configured", "offered", "efficiency", "delay_mean",
+                                            "jitter", "enqueued", "delivered")} for n, f in fl.items()}}
+    return out
 
 
 def _num(v: float | None, digits: int = 1) -> str:
