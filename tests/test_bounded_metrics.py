@@ -100,3 +100,22 @@ def test_an_event_of_a_settled_frame_is_a_violation():
     c = acc.result().conservation
     assert c.total == 1 and "b" not in c[0].split(":")[0] and "a seq 3: rx at" in c[0], list(c)
     assert c.frames == SWEEP + 1
+
+
+def test_a_frame_to_an_address_nobody_has_ends_noaddr_not_in_flight():
+    """#41: on a channel without MAC a unicast frame goes on air whatever its address (the others get it
+    implicitly); to an address no modem has, nobody could ever receive it: its outcome is `noaddr` at once,
+    so it is neither in flight at the end nor a violation, whenever the run stops."""
+    sc = load_scene_text(line_scene(2, 200.0).replace("<dst>2</dst>", "<dst>99</dst>"))
+    for until in (200.0, 95.0):                     # the whole run, and one cut 5 s after a transmission
+        net = Network(sc)
+        recs: list[dict] = []
+        net.tracer.add(recs.append)
+        net.run(until)
+        a = analyse([net.meta(), *recs], end=until)
+        f0 = a.flows["f0"]
+        assert list(a.conservation) == [] and a.conservation.in_flight == []
+        assert f0.sent == sum(r["ev"] == "tx" and r["dev"] == "m0" for r in recs) > 0
+        assert f0.drops == {"noaddr": f0.sent} and f0.delivered == 0 and f0.delivery_ratio == 0.0
+        assert any(r["ev"] == "rx" and r.get("implicit") for r in recs)     # heard by m1, not delivered
+        assert a.flows["f1"].delivered == a.flows["f1"].sent              # m1 -> m0 unaffected

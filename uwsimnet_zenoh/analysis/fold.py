@@ -271,6 +271,7 @@ class Fold(Listener):
         self.late: list[str] = []                           # violations: events of frames settled early
         self.n_late = 0
         self.n_exact = 0                                    # delays kept exact, in all flows
+        self.rx_channels = {ch for ch, _ in meta_rx}        # channels whose addresses the meta lists
         self.binned = False
         self.senders: dict[str, Sender] = {}                # transmitter dccommsId -> its frames
         self.channels: dict[object, ChannelState] = {}
@@ -673,8 +674,18 @@ class Fold(Listener):
                 bump(drops, r.reason)
         if ntd and not any_rx:
             bump(drops, f.txdrop)
+        elif nt and self._nobody(f, rcv):
+            bump(drops, "noaddr")
         if nt:
             m.intended += len(rcv) if f.dst == _BROADCAST else 1
+
+    def _nobody(self, f: FrameState, rcv: list[Receiver]) -> bool:
+        """A unicast frame without outcome to an address no modem on its channel has (the meta lists them): a
+        channel without MAC carried it to everyone, as a broadcast (implicit rx), but nobody could receive it:
+        its final outcome is `noaddr`, as for a MAC that refuses it at once."""
+        fdst = f.dst
+        return (not rcv and not f.n_txdrop and fdst != _BROADCAST and fdst >= 0 and f.ch in self.rx_channels
+                and (f.ch, fdst) not in self.meta_rx)
 
     def _judge(self, f: FrameState, end: object, horizon: float) -> tuple[list[str], tuple[Any, ...] | None]:
         """A frame's violations (messages) and, if it is in flight at `end`, its (dev, seq, flow, state,
@@ -710,7 +721,7 @@ class Fold(Listener):
                 rdev = rcv[0].dev
                 if addressee is not None and rdev != addressee:
                     msgs.append(f"outcome at {rdev}, not at its addressee {addressee}")
-        if not rcv and not ntd:
+        if not rcv and not ntd and not (nt and self._nobody(f, rcv)):
             if nt == 0:
                 s = self.senders.get(f.dev)
                 if s is not None and s.max_seq > f.seq:

@@ -378,7 +378,8 @@ def _summary(analysis: Any, s: dict[str, Any], net: Any) -> None:
 
     console = Console()
     show_metrics(analysis.flows)
-    bad = {k: v for k, v in (s.get("bus") or {}).items() if k not in ("tx_messages", "poses")}
+    bad = {k: v for k, v in (s.get("bus") or {}).items()     # (edge_*: the `lost at the edge` lines below)
+           if k not in ("tx_messages", "poses") and not k.startswith("edge_")}
     if s.get("ros2"):
         bad["ros2"] = s["ros2"]
     end = net.end or {}
