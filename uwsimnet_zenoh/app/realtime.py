@@ -352,11 +352,19 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 broker.close()
                 summary["edge"] = broker.edge_summary()
                 summary["ingress_warn"] = broker.ingress_warn_s
+                lost = {dev: {"rx": e["lost"].get("rx", 0), "frames": [list(x) for x in e.get("lost_rx", [])]}
+                        for dev, e in sorted(summary["edge"].items()) if (e.get("lost") or {}).get("rx")}
+                if lost:                        # the trace says which frames it records received never left
+                    extra["lost_at_edge"] = lost
             if reason == "duration" and duration is not None:
                 t_stop = min(t_stop, duration)
             out.finish(net.end_record(reason, t=t_stop, **extra))     # the last batch, the end record last
             out.__exit__(None, None, None)
-            session.close()
+            try:
+                session.close()
+            except Exception as e:  # noqa: BLE001 - a consumer that does not read holds Zenoh's close up
+                log.warning("the Zenoh session did not close in time (%s): a consumer does not read",
+                            " ".join(str(e).split())[:200])
             faulthandler.cancel_dump_traceback_later()
     _summary(out.result(), summary, net)
     if trace is not None:
