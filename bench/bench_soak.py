@@ -7,7 +7,11 @@ RSS at 1, 5 and 10 minutes (or the ends of a shorter run), and the slope of a le
 the samples after the first minute (start-up, Zenoh's buffers and the import of everything are done by
 then), in MB per minute.  A slope that stays at 0.8 MB/min is 235 B a frame; flat is a few kB/min.
 
+`--pose-names N`: also, during the first minute, N pose samples each naming a vehicle nobody has (a forged
+flood of names): the broker must count them (`pose_unknown` in its summary) and keep no state per name.
+
 Run: .venv/bin/python bench/bench_soak.py --minutes 10 [--code DIR] [--modems 64] [--every 5] [--json F]
+[--pose-names N]
 `--code DIR`: the uwsimnet_zenoh package to run (a checkout, e.g. `git archive main | tar -x -C DIR`),
 by default this one.  Any flag the run takes can follow `--`, e.g. `-- --trace /tmp/soak.jsonl`.
 """
@@ -75,13 +79,32 @@ def at(samples: list[tuple[float, float]], minute: float) -> float:
     return min(samples, key=lambda s: abs(s[0] - minute * 60))[1]
 
 
-def soak(minutes: float, n: int, every: float, code: Path, extra: list[str]) -> dict:
+def flood_names(endpoint: str, world: str, names: int, seconds: float) -> None:
+    """`names` pose samples, each for a vehicle of its own that the scene does not have, over `seconds`."""
+    import zenoh  # noqa: PLC0415 - only this mode needs a session here
+    from uwsimnet_gli.wire import Keys, encode_pose  # noqa: PLC0415
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    keys = Keys(world)
+    with zenoh.open(conf) as s:
+        t0 = time.monotonic()
+        for i in range(names):
+            s.put(keys.pose(f"forged{i}"), encode_pose((0.0, 0.0, 0.0)))
+            d = t0 + seconds * (i + 1) / names - time.monotonic()
+            if d > 0:
+                time.sleep(d)
+
+
+def soak(minutes: float, n: int, every: float, code: Path, extra: list[str], pose_names: int = 0) -> dict:
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "soak.xml"
         path.write_text(scene_xml(n, "soak", minutes))
         env = dict(os.environ, PYTHONPATH=str(code))
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
         argv = [sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(path), "--clock", "realtime",
-                "--listen", f"tcp/127.0.0.1:{free_port()}", *extra]
+                "--listen", endpoint, *extra]
         p = subprocess.Popen(argv, cwd=d, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         assert p.stdout is not None
         for line in p.stdout:                       # wait for the run to start
@@ -90,6 +113,10 @@ def soak(minutes: float, n: int, every: float, code: Path, extra: list[str]) -> 
         else:
             raise RuntimeError(f"the broker did not start (exit {p.wait()})")
         t0 = time.monotonic()
+        if pose_names:
+            import threading  # noqa: PLC0415
+            threading.Thread(target=flood_names, args=(endpoint, "soak", pose_names, min(60.0, minutes * 30)),
+                             daemon=True).start()
         samples: list[tuple[float, float]] = []
         load0 = os.getloadavg()[0]
         try:
@@ -104,9 +131,10 @@ def soak(minutes: float, n: int, every: float, code: Path, extra: list[str]) -> 
     return {"machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cores",
             "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
             "load": f"{load0:.1f}-{load1:.1f}", "code": str(code), "modems": n, "minutes": minutes,
+            "pose_names": pose_names,
             "rss_1": at(samples, 1), "rss_5": at(samples, min(5, minutes)), "rss_10": at(samples, min(10, minutes)),
             "slope_mb_per_min": 60 * slope([s[0] for s in late], [s[1] for s in late]),
-            "samples": samples, "summary_tail": out.strip().splitlines()[-6:]}
+            "samples": samples, "summary_tail": [x for x in out.strip().splitlines()[-8:] if not x.startswith("f")]}
 
 
 def main() -> None:
@@ -116,9 +144,10 @@ def main() -> None:
     ap.add_argument("--every", type=float, default=5.0, help="seconds between RSS samples")
     ap.add_argument("--code", type=Path, default=ROOT, help="directory holding the uwsimnet_zenoh to run")
     ap.add_argument("--json", type=Path, help="write the result (with every sample) here")
+    ap.add_argument("--pose-names", type=int, default=0, help="forged pose names to send in the first minute")
     ap.add_argument("extra", nargs="*", help="flags for `uwsimnet run` (after --)")
     a = ap.parse_args()
-    r = soak(a.minutes, a.modems, a.every, a.code.resolve(), a.extra)
+    r = soak(a.minutes, a.modems, a.every, a.code.resolve(), a.extra, a.pose_names)
     if a.json:
         a.json.write_text(json.dumps(r, indent=1))
     print("| machine | date | load | code | MB at 1 min | 5 min | 10 min | slope after 1 min (MB/min) |")

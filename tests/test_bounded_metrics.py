@@ -89,17 +89,28 @@ def test_few_delays_stay_exact():
     assert f.delay_mean == float(np.mean(got))
 
 
-def test_an_event_of_a_settled_frame_is_a_violation():
-    acc = Accumulator({}, settle_after=10.0)
-    for seq in range(SWEEP + 1):                    # one a second: the first sweep settles all but the last 10 s
+def _feed(acc: Accumulator, n: int) -> Accumulator:
+    """n frames, one a second, each delivered 0.5 s later but seq 5 (no outcome: a violation)."""
+    for seq in range(n):
         acc.event(float(seq), "enq", 0, "a", 1, 2, seq, 20, "f", "data", None, False)
         acc.event(float(seq), "tx", 0, "a", 1, 2, seq, 20, "f", "data", None, False)
-        acc.event(seq + 0.5, "rx", 0, "b", 1, 2, seq, 20, "f", "data", None, True)
-    assert len(acc._fold.frames) < 20
-    acc.event(SWEEP + 1.0, "rx", 0, "b", 1, 2, 3, 20, "f", "data", None, True)    # seq 3 again, long after
+        if seq != 5:
+            acc.event(seq + 0.5, "rx", 0, "b", 1, 2, seq, 20, "f", "data", None, True)
+    return acc
+
+
+def test_frames_settle_past_a_violation_and_an_event_of_a_settled_frame_is_one():
+    n = 3 * SWEEP
+    acc = _feed(Accumulator({}, settle_after=10.0), n)     # each sweep settles all but the last 10 s
+    fold = acc._fold
+    assert len(fold.frames) < SWEEP and len(fold.senders["a"].seqs) < SWEEP   # seq 5 holds no one else
+    assert report_json(acc.result().flows) == report_json(_feed(Accumulator({}), n).result().flows)
+    acc = _feed(Accumulator({}, settle_after=10.0), n)
+    acc.event(float(n), "rx", 0, "b", 1, 2, 3, 20, "f", "data", None, True)   # seq 3 again, long after
     c = acc.result().conservation
-    assert c.total == 1 and "b" not in c[0].split(":")[0] and "a seq 3: rx at" in c[0], list(c)
-    assert c.frames == SWEEP + 1
+    assert c.total == 2 and c.frames == n, list(c)
+    assert c[0] == f"a seq 5 (flow f): transmitted at 5 s, no outcome by the end ({n} s)", list(c)
+    assert c[1].startswith(f"a seq 3: rx at {float(n)} s, after its frame was settled"), list(c)
 
 
 def test_a_frame_to_an_address_nobody_has_ends_noaddr_not_in_flight():

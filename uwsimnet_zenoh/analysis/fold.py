@@ -593,6 +593,12 @@ class Fold(Listener):
             if k:
                 del seqs[:k]
                 s.base += k
+            if any(f.retired for f in seqs):    # held up by a frame that does not settle (a violation):
+                for f in seqs:                  # it and the others held go to the dict, the list starts anew
+                    if not f.retired:
+                        s.frames[f.seq] = f
+                s.base += len(seqs)
+                s.seqs = []
         self._sweep_at = max(SWEEP, 2 * len(keep))
 
     def settle(self, end: object, horizon: float, limit: int) -> tuple[list[str], int, list[tuple[Any, ...]]]:
