@@ -416,7 +416,7 @@ def _finish(s: FlowState, mf: Mapping[str, Any] | None, duration: float | None) 
     m.delivery_ratio = m.delivered / s.intended if s.intended > 0 else None
     if s.bins:
         m.delay_mean = (s.sum_d + s.sum_c) / s.n_delays
-        m.delay_median, m.delay_p95 = binned_median_p95(counts(s.bins))  # type: ignore[arg-type]
+        m.delay_median, m.delay_p95 = binned_median_p95({k: c.n for k, c in s.bins.items()})
     elif s.delays:
         d = [float(x) for x in s.delays]
         m.delay_mean = mean(d)
