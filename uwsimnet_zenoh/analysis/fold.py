@@ -119,17 +119,21 @@ SUB: Final = 256
 _OFF: Final = 1100      # math.frexp's exponents are above -1075: every bin of a nonzero delay is positive
 
 
-def delay_bin(v: float) -> int:
-    """The bin of delay `v` (0 for 0, negative for a negative one): bins sort as their values do."""
-    if v == 0.0:
-        return 0
-    m, e = math.frexp(abs(v))
-    k = (e + _OFF) * SUB + int((m - 0.5) * (2 * SUB))
-    return k if v > 0.0 else -k
+def bin_delay(bins: dict[int, Count], d: float) -> None:
+    """Count delay `d` in its bin: 0 for 0, else SUB per octave (negative for a negative delay), in value order."""
+    k = 0
+    if d != 0.0:
+        m, e = math.frexp(abs(d))
+        k = (e + _OFF) * SUB + int((m - 0.5) * (2 * SUB))
+        k = k if d > 0.0 else -k
+    c = bins.get(k)
+    if c is None:
+        c = bins[k] = Count()
+    c.n += 1
 
 
 def bin_value(k: int) -> float:
-    """The middle of bin `k` (delay_bin)."""
+    """The middle of bin `k` (bin_delay)."""
     if k == 0:
         return 0.0
     e, sub = divmod(abs(k), SUB)
@@ -137,18 +141,8 @@ def bin_value(k: int) -> float:
     return v if k > 0 else -v
 
 
-def bin_delay(bins: dict[int, Count], d: float) -> None:
-    k = delay_bin(d)
-    c = bins.get(k)
-    if c is None:
-        c = bins[k] = Count()
-    c.n += 1
-
-
 SWEEP: Final = 4096
 """Frames held before the first look for settled ones (then: twice those held after the last look)."""
-
-
 LOW: Final = 4096
 """Source addresses below this are found in a list (MAC addresses are small numbers), the others in a dict."""
 
@@ -221,7 +215,7 @@ class FlowState:
         self.t_first_enq: object = None
         self.t_last: object = None
         self.delays: list[float] = []                  # exact, while the fold keeps them (Fold.binned)
-        self.bins: dict[int, Count] = {}                # then: by delay_bin
+        self.bins: dict[int, Count] = {}                # then: by bin (bin_delay)
         self.n_delays = 0
         self.sum_d = 0.0                                # their sum, compensated (Neumaier): the mean once binned
         self.sum_c = 0.0
@@ -570,6 +564,7 @@ class Fold(Listener):
         now = -math.inf if t_end is None else float(t_end)  # type: ignore[arg-type]
         cut = now - self.settle_after
         keep: list[FrameState] = []
+        n = 0
         for f in self.frames:
             if f.t_last < cut and (f.n_tx or f.n_txdrop):
                 if self._clean(f):
@@ -581,11 +576,15 @@ class Fold(Listener):
                         continue
                     self._odd_outcome(f)
                 f.retired = True
-                self.senders[f.dev].frames.pop(f.seq, None)
+                n += 1
             else:
                 keep.append(f)
         self.frames = keep
         for s in self.senders.values():
+            if s.frames:
+                for q in [q for q, f in s.frames.items() if f.retired]:
+                    del s.frames[q]
+                    n -= 1
             seqs = s.seqs
             k = 0
             while k < len(seqs) and seqs[k].retired:
@@ -593,12 +592,16 @@ class Fold(Listener):
             if k:
                 del seqs[:k]
                 s.base += k
-            if any(f.retired for f in seqs):    # held up by a frame that does not settle (a violation):
-                for f in seqs:                  # it and the others held go to the dict, the list starts anew
-                    if not f.retired:
-                        s.frames[f.seq] = f
-                s.base += len(seqs)
-                s.seqs = []
+                n -= k
+        if n:                                   # some held up by a frame that does not settle (a violation):
+            for s in self.senders.values():     # it and the others held go to the dict, the list starts anew
+                seqs = s.seqs
+                if any(f.retired for f in seqs):
+                    for f in seqs:
+                        if not f.retired:
+                            s.frames[f.seq] = f
+                    s.base += len(seqs)
+                    s.seqs = []
         self._sweep_at = max(SWEEP, 2 * len(keep))
 
     def settle(self, end: object, horizon: float, limit: int) -> tuple[list[str], int, list[tuple[Any, ...]]]:

@@ -463,7 +463,7 @@ def mean(d: list[float]) -> float:
 
 
 def binned_median_p95(bins: Mapping[int, int]) -> tuple[float, float]:
-    """median_p95 of delays binned (fold.delay_bin: count by bin), each order statistic its bin's middle: each
+    """median_p95 of delays binned (fold.bin_delay: count by bin), each order statistic its bin's middle: each
     within 1/(2 fold.SUB) = 0.2 % of the exact one, and so are the median and p95 (means of two)."""
     keys = sorted(bins)
     n = sum(bins.values())
