@@ -1,7 +1,8 @@
 """Per-flow metrics and the conservation check, computed from trace records (docs/trace-format.md).
 
 One pass over the events with state keyed by (transmitter dccommsId, seq), then one pass over the
-frames seen: time and memory are linear in the trace.  Everything here is pure: files are only read.
+frames seen: time and memory are linear in the trace (a run's online summary, whose events come in time
+order, lets frames settle as it goes: bounded memory, fold.Fold).  Everything here is pure: files are only read.
 
     a = analyse("run.jsonl")            # one pass: a.flows (FlowMetrics per flow) + a.conservation
     assert a.conservation == [] and not a.conservation.in_flight
