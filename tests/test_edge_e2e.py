@@ -199,3 +199,8 @@ def test_a_reading_app_gets_every_frame_the_trace_says_it_received(tmp_path, pro
     assert missing == [], (missing[:20], len(missing), len(recorded))
     out = b.output()
     assert "stalled at the edge:" in out and "Traceback" not in out
+    # and the frames whose put waited on the stopped consumer (it may not have them) are named with the wait
+    stalled = end["stalled_at_edge"]
+    assert stalled and all(w >= 0.5 and [s, q] in [[r["src"], r["seq"]] for r in map(json.loads, lines[1:-1])
+                                                    if r["ev"] == "rx" and r["dev"] == dev]
+                           for dev, xs in stalled.items() for s, q, w in xs), stalled

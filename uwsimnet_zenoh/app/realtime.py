@@ -356,6 +356,10 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                         for dev, e in sorted(summary["edge"].items()) if (e.get("lost") or {}).get("rx")}
                 if lost:                        # the trace says which frames it records received never left
                     extra["lost_at_edge"] = lost
+                stalled = {dev: [[*x, round(w, 3)] for x, w in e["stalled_rx"]]
+                           for dev, e in sorted(summary["edge"].items()) if e.get("stalled_rx")}
+                if stalled:                     # and which waited on a consumer that did not read
+                    extra["stalled_at_edge"] = stalled
             if reason == "duration" and duration is not None:
                 t_stop = min(t_stop, duration)
             out.finish(net.end_record(reason, t=t_stop, **extra))     # the last batch, the end record last

@@ -82,6 +82,8 @@ class Outbox:
         self.stalled: Counter[str] = Counter()
         """Puts that waited STALL_S or more (a consumer not reading; what it did not take may be lost), by kind."""
         self.stalled_max = 0.0
+        self.stalled_ids: list[tuple[Any, float]] = []
+        """(ident, wall s waited) of those stalled puts that had an ident, the first LOST_IDS."""
         self._thread = threading.Thread(target=self._run, name=f"uwsimnet-out-{name}", daemon=True)
         self._thread.start()
 
@@ -153,7 +155,7 @@ class Outbox:
                     cond.wait()
                 if not q:
                     return
-                fn, arg, kind, _ = q.popleft()
+                fn, arg, kind, ident = q.popleft()
             t0 = _clock()
             try:
                 fn(arg)
@@ -164,6 +166,8 @@ class Outbox:
             waited = _clock() - t0
             if waited >= STALL_S:
                 self.stalled[kind] += 1
+                if ident is not None and len(self.stalled_ids) < LOST_IDS:
+                    self.stalled_ids.append((ident, waited))
                 if waited > self.stalled_max:
                     self.stalled_max = waited
                 if sum(self.stalled.values()) in (1, 10, 100, 1000):
