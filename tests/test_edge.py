@@ -343,3 +343,28 @@ def test_hil_swap_state_machine():
     assert h.driver_down("m", in_network=True) == (NOTHING, None)  # not real any more
     assert h.driver_up("x", served=False) == NOTHING             # a driver for an id we do not serve (yet)
     assert h.driver_down("x", in_network=True) == (RETOKEN, None)
+
+
+def test_the_summary_counts_what_the_edge_lost_once(rig, capsys):
+    """#41: what a stuck consumer's outbox still held when the broker closed is lost too: the broker's
+    counter, the outboxes and the run summary give one count, printed once (the `lost at the edge` line)."""
+    from uwsimnet_zenoh.analysis import Accumulator
+    from uwsimnet_zenoh.app.realtime import _summary
+
+    b, net, clock, session, gate = rig(2, blocked=("uwsimnet/edge/modem/m1/rx",), outbox_capacity=8)
+    n_flood = 30
+    for i in range(n_flood):
+        _send(b, "m0", 2, b"f" * 50, i)
+    _wait(lambda: net.modems["m1"].counters["rx"] == n_flood)
+    _wait(lambda: session.pubs["uwsimnet/edge/modem/m1/rx"].waiting == 1)
+    clock.stop()
+    clock.join(5)
+    b.close()                                   # the consumer still stuck: its queued rx are lost at close
+    lost = b.edge_summary()["m1"]["lost"]
+    assert lost == {"rx": n_flood - 1}          # all but the put stuck in Zenoh
+    assert b.counters["edge_rx"] == n_flood - 1
+    _summary(Accumulator(net.meta()).result(), {"t": 1.0, "events": 0, "late_mean": 0.0, "late_max": 0.0,
+                                                "items": 0, "errors": 0, "bus": dict(b.counters),
+                                                "edge": b.edge_summary()}, net)
+    out = capsys.readouterr().out
+    assert f"lost at the edge: m1: {n_flood - 1} rx" in out and "edge_rx" not in out, out

@@ -207,6 +207,20 @@ def test_fifo_size_zero_drops_whatever_is_offered_while_busy():
     assert [r["seq"] for r in rec.ev("rx")] == [0, 2]
 
 
+def test_a_frame_larger_than_the_fifo_is_refused_idle_or_busy():
+    """#41: a frame that could never wait in the FIFO is refused `size` at once, whether the modem is idle
+    (it used to go on air) or busy (it used to be dropped `fifo`); one that fits goes as before."""
+    a = device("a", 1, tx_fifo_bytes=30)
+    b = device("b", 2)
+    rec = Recorded(scene([vehicle("va", (0, 0, 0), a), vehicle("vb", (10, 0, 0), b)]))
+    at(rec, 1.0, "a", 2, 40)           # idle: 40 B > 30 B of FIFO
+    at(rec, 2.0, "a", 2, 25)           # fits: on air [2.0, 2.2) at 1000 bps
+    at(rec, 2.1, "a", 2, 40)           # busy: 40 B > 30 B of FIFO
+    rec.run()
+    assert [(d["seq"], d["reason"], d["dev"]) for d in rec.ev("drop")] == [(0, "size", "a"), (2, "size", "a")]
+    assert [r["seq"] for r in rec.ev("tx")] == [1] and [r["seq"] for r in rec.ev("rx")] == [1]
+
+
 def test_intrinsic_delay_keeps_the_transmitter_busy():
     a = device("a", 1, intrinsic_tx_s=0.1)
     b = device("b", 2)

@@ -553,6 +553,10 @@ BAD: list[tuple[str, str, str]] = [
     ("flow-too-big", _scene(dev=NO_LOSS + "<headerBytes>16</headerBytes>",
                             top=FLOW.format("<interval>1</interval>").replace("<size>8", "<size>2040")),
      "14: size: 2040 + headerBytes 16 = 2056 bytes exceeds maxFrameBytes 2048 of device 'a-dev'"),
+    ("flow-larger-than-fifo", _scene(dev=NO_LOSS + "<txFifoSize>100</txFifoSize>",
+                                     top=FLOW.format("<interval>1</interval>").replace("<size>8", "<size>101")),
+     "14: size: 101 bytes on air exceed txFifoSize 100 of device 'a-dev' (every frame would be refused: it could"
+     " never wait there)"),
     ("flow-arrival", _scene(dev=NO_LOSS, top=FLOW.format("<interval>1</interval><arrival>burst</arrival>")),
      "14: arrival: expected periodic or poisson, got 'burst'"),
     ("flow-dst-range",

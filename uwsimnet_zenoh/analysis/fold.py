@@ -63,6 +63,8 @@ class FrameState:
         self.multi: dict[str, Receiver] | None = None
         self.t_enq: object = None
         self.t_tx: object = None        # last transmission
+        self.t_last = -math.inf         # its last event, as a float (when it may be settled)
+        self.retired = False            # settled before the end: its outcomes are in its flow, it takes no more
 
     def receiver(self, dev: str) -> Receiver | None:
         """The record of receiver `dev` if the frame has several (made one from a second receiver on),
@@ -110,6 +112,37 @@ def counts(by: dict[str | None, Count]) -> dict[str | None, int]:
     return {k: c.n for k, c in by.items()}
 
 
+EXACT: Final = 8192
+"""Delays the fold keeps exact, in all flows together: from one more on, every flow's delays are binned."""
+SUB: Final = 256
+"""Delay bins per octave: a bin's middle is within 1/(2 SUB) (0.2 %) of every value in it."""
+_OFF: Final = 1100      # math.frexp's exponents are above -1075: every bin of a nonzero delay is positive
+
+
+def bin_delay(bins: dict[int, Count], d: float) -> None:
+    """Count delay `d` in its bin: 0 for 0, else SUB per octave (negative for a negative delay), in value order."""
+    k = 0
+    if d != 0.0:
+        m, e = math.frexp(abs(d))
+        k = (e + _OFF) * SUB + int((m - 0.5) * (2 * SUB))
+        k = k if d > 0.0 else -k
+    c = bins.get(k)
+    if c is None:
+        c = bins[k] = Count()
+    c.n += 1
+
+
+def bin_value(k: int) -> float:
+    """The middle of bin `k` (bin_delay)."""
+    if k == 0:
+        return 0.0
+    e, sub = divmod(abs(k), SUB)
+    v = math.ldexp(0.5 + (sub + 0.5) / (2 * SUB), e - _OFF)
+    return v if k > 0 else -v
+
+
+SWEEP: Final = 4096
+"""Frames held before the first look for settled ones (then: twice those held after the last look)."""
 LOW: Final = 4096
 """Source addresses below this are found in a list (MAC addresses are small numbers), the others in a dict."""
 
@@ -143,7 +176,8 @@ class Sender:
 
     def __init__(self, dev: str) -> None:
         self.dev = dev
-        self.seqs: list[FrameState] = []                # frames 0, 1, 2, ...: seq k at index k
+        self.seqs: list[FrameState] = []                # frames base, base + 1, ...: seq k at index k - base
+        self.base = 0                                   # the frames below it are settled (Fold.settle_after)
         self.frames: dict[int, FrameState] = {}         # the others (a seq that skipped ahead, negative)
         self.max_seq = -1
         self.flow_name: object = None                   # the flow name of its last new frame, and its id
@@ -153,8 +187,9 @@ class Sender:
         """Its data frame `seq`, if it has one.  A modem numbers its frames 0, 1, 2, ..., so they are a
         list read by index (no int made for a key, no hash); a trace that skips goes on in the dict."""
         seqs = self.seqs
-        if 0 <= seq < len(seqs):
-            return seqs[seq]
+        i = seq - self.base
+        if 0 <= i < len(seqs):
+            return seqs[i]
         return self.frames.get(seq)
 
 
@@ -179,7 +214,11 @@ class FlowState:
         self.t_first: object = None
         self.t_first_enq: object = None
         self.t_last: object = None
-        self.delays: list[float] = []
+        self.delays: list[float] = []                  # exact, while the fold keeps them (Fold.binned)
+        self.bins: dict[int, Count] = {}                # then: by bin (bin_delay)
+        self.n_delays = 0
+        self.sum_d = 0.0                                # their sum, compensated (Neumaier): the mean once binned
+        self.sum_c = 0.0
         self.prev_delay = 0.0
         self.has_prev = False
         self.jit_sum = 0.0
@@ -203,17 +242,31 @@ class ChannelState:
 
 class Fold(Listener):
     """The state of a run's events so far.  `meta_tx`/`meta_rx`: (channel, address) -> dccommsId from the
-    meta (the fallbacks of transmitters learnt from enq/tx events); `header`: header bytes per dccommsId."""
+    meta (the fallbacks of transmitters learnt from enq/tx events); `header`: header bytes per dccommsId.
+
+    `settle_after` (s, a run's events, which come in time order): a frame transmitted or dropped at its
+    transmitter, with no event for that long and no violation, is settled at once (its outcomes into its
+    flow, as `settle` would) and its state let go, so a run's memory does not grow with its frames; an
+    event of such a frame later is a violation of its own.  Infinite (a trace read back, in any order):
+    every frame is held to the end.  The delays are exact up to EXACT of them, then binned (bins)."""
 
     def __init__(self, meta_tx: dict[tuple[object, int], str], meta_rx: dict[tuple[object, int], str],
-                 header: dict[str, int]) -> None:
+                 header: dict[str, int], settle_after: float = math.inf) -> None:
         self.meta_tx = meta_tx
         self.meta_rx = meta_rx
         self.header = header
         self.tx: dict[object, Addresses] = {}               # learnt: ch -> src -> transmitter
         self.flows: list[FlowState] = []
         self.fid: dict[str, int] = {}
-        self.frames: list[FrameState] = []
+        self.frames: list[FrameState] = []                  # the frames held, in the order they came
+        self.n_frames = 0                                   # all of them, settled early or not
+        self.settle_after = settle_after
+        self._sweep_at = SWEEP
+        self.late: list[str] = []                           # violations: events of frames settled early
+        self.n_late = 0
+        self.n_exact = 0                                    # delays kept exact, in all flows
+        self.rx_channels = {ch for ch, _ in meta_rx}        # channels whose addresses the meta lists
+        self.binned = False
         self.senders: dict[str, Sender] = {}                # transmitter dccommsId -> its frames
         self.channels: dict[object, ChannelState] = {}
         self.t_end: object = None           # None: no event yet
@@ -374,13 +427,18 @@ class Fold(Listener):
 
         seqs = snd.seqs
         n_seqs = len(seqs)
-        if 0 <= seq < n_seqs:
-            f: FrameState | None = seqs[seq]
-        elif seq == n_seqs and not snd.frames:
+        i = seq - snd.base
+        if 0 <= i < n_seqs:
+            f: FrameState | None = seqs[i]
+        elif i == n_seqs and not snd.frames:
             f = None        # the next one, the common case: no lookup
         else:
             f = snd.frames.get(seq)
-        if f is None:
+        if (f is not None and f.retired) or (f is None and 0 <= seq < snd.base):
+            self._late(t, ev, tx_dev, seq)
+            fl = self.flow(flow if flow is not None else tx_dev, tx_dev, -1 if dst is None else dst, None)  # type: ignore[arg-type]
+            f = FrameState(tx_dev, seq, fl, ch, -1)   # counted in its flow, held by nobody
+        elif f is None:
             fdst: int = -1 if dst is None else dst  # type: ignore[assignment]
             name = flow if flow is not None else tx_dev
             if name is snd.flow_name:
@@ -390,11 +448,15 @@ class Fold(Listener):
                 snd.flow_name = name
                 snd.flow_id = fl
             f = FrameState(tx_dev, seq, fl, ch, fdst)
-            if seq == n_seqs:
+            if i == n_seqs:
                 seqs.append(f)
             else:
                 snd.frames[seq] = f
             self.frames.append(f)
+            self.n_frames += 1
+            if len(self.frames) >= self._sweep_at and self.settle_after < math.inf:
+                self._sweep()
+        f.t_last = float(t)  # type: ignore[arg-type]
         m = self.flows[f.flow]
         if m.t_first is None:
             m.t_first = t
@@ -438,7 +500,18 @@ class Fold(Listener):
             t_enq = f.t_enq
             if t_enq is not None:
                 d = float(t) - float(t_enq)  # type: ignore[arg-type]
-                m.delays.append(d)
+                if self.binned:
+                    bin_delay(m.bins, d)
+                else:
+                    m.delays.append(d)
+                    self.n_exact += 1
+                    if self.n_exact > EXACT:
+                        self._bin_all()
+                m.n_delays += 1
+                s0 = m.sum_d
+                x = s0 + d
+                m.sum_c += (s0 - x) + d if abs(s0) >= abs(d) else (d - x) + s0
+                m.sum_d = x
                 if m.has_prev:
                     m.jit_sum += abs(d - m.prev_delay)
                     m.jit_n += 1
@@ -470,6 +543,67 @@ class Fold(Listener):
                     rc.reason = reason
                     rc.at = f.n_tx
 
+    def _late(self, t: object, ev: str, dev: str, seq: int) -> None:
+        """An event of a frame settled early (settle_after): a violation of its own."""
+        self.n_late += 1
+        if len(self.late) < 1000:
+            self.late.append(f"{dev} seq {seq}: {ev} at {t} s, after its frame was settled (no event of it for "
+                             f"{self.settle_after:g} s before)")
+
+    def _bin_all(self) -> None:
+        """From now on every flow's delays are binned: the exact ones so far too."""
+        self.binned = True
+        for m in self.flows:
+            for d in m.delays:
+                bin_delay(m.bins, d)
+            m.delays = []
+
+    def _sweep(self) -> None:
+        """Settle the frames that can be (settle_after) and let them go."""
+        t_end = self.t_end
+        now = -math.inf if t_end is None else float(t_end)  # type: ignore[arg-type]
+        cut = now - self.settle_after
+        keep: list[FrameState] = []
+        n = 0
+        for f in self.frames:
+            if f.t_last < cut and (f.n_tx or f.n_txdrop):
+                if self._clean(f):
+                    self._outcome(f)
+                else:
+                    msgs, fly = self._judge(f, now, self.settle_after)
+                    if msgs or fly is not None:
+                        keep.append(f)
+                        continue
+                    self._odd_outcome(f)
+                f.retired = True
+                n += 1
+            else:
+                keep.append(f)
+        self.frames = keep
+        for s in self.senders.values():
+            if s.frames:
+                for q in [q for q, f in s.frames.items() if f.retired]:
+                    del s.frames[q]
+                    n -= 1
+            seqs = s.seqs
+            k = 0
+            while k < len(seqs) and seqs[k].retired:
+                k += 1
+            if k:
+                del seqs[:k]
+                s.base += k
+                n -= k
+        if n:                                   # some held up by a frame that does not settle (a violation):
+            for s in self.senders.values():     # it and the others held go to the dict, the list starts anew
+                seqs = s.seqs
+                if any(f.retired for f in seqs):
+                    for f in seqs:
+                        if not f.retired:
+                            s.frames[f.seq] = f
+                    s.base += len(seqs)
+                    s.seqs = []
+        self._sweep_at = max(SWEEP, 2 * len(keep))
+
     def settle(self, end: object, horizon: float, limit: int) -> tuple[list[str], int, list[tuple[Any, ...]]]:
         """Final outcomes of every frame (into its flow's `drops`, `intended`, `in_flight`) and the conservation
         check: (violations, at most `limit` of them, the count of all, frames in flight as (dev, seq, flow,
@@ -477,72 +611,107 @@ class Fold(Listener):
         violations: list[str] = []
         total = 0
         in_flight: list[tuple[Any, ...]] = []
-        flows = self.flows
-        meta_rx = self.meta_rx
-        who_ch: object = None       # the last addressee looked up: frames of a run go to a few
-        who_dst = -2
-        who: str | None = None
         for f in self.frames:
-            m = flows[f.flow]
-            drops = m.drops
-            nt = f.n_tx
-            ntd = f.n_txdrop
-            final = ntd > 0 and f.txdrop_at == nt
-            fdst = f.dst
-            multi = f.multi
-            if multi is None and f.n_enq == 1 and ntd <= 1 and not (ntd and f.txdrop_at < nt) and (
-                    f.r_dev is not None or ntd) and f.r_nrx <= 1 and f.r_nrx + f.r_ndrop <= nt:
-                # the common case, no violation possible but a receiver that is not the addressee
-                rd = f.r_dev
-                if rd is not None and fdst != _BROADCAST:
-                    if fdst != who_dst or f.ch is not who_ch:
-                        who_ch = f.ch
-                        who_dst = fdst
-                        who = meta_rx.get((who_ch, fdst))
-                    if who is not None and rd != who:
-                        total += self._odd(f, end, horizon, violations, in_flight, limit)
-                        continue
-                if rd is not None and f.r_nrx == 0 and f.r_ndrop and f.r_at == nt and not final:
-                    bump(drops, f.r_reason)
-                if ntd and not f.r_nrx:
-                    bump(drops, f.txdrop)
-                if nt:
-                    m.intended += 1 if (rd is not None or fdst != _BROADCAST) else 0
-                continue
-            total += self._odd(f, end, horizon, violations, in_flight, limit)
+            if self._clean(f):
+                self._outcome(f)
+            else:
+                total += self._odd(f, end, horizon, violations, in_flight, limit)
+        for msg in self.late:
+            if len(violations) < limit:
+                violations.append(msg)
+        total += self.n_late
         if total > len(violations):
             violations.append(f"... {total - len(violations)} more violations")
         return violations, total, in_flight
 
+    def _clean(self, f: FrameState) -> bool:
+        """The common case, where no violation is possible: one enq, at most one transmitter-side drop (its
+        last event), an outcome, at most one receiver (the addressee if the meta knows it) and one delivery."""
+        nt = f.n_tx
+        ntd = f.n_txdrop
+        if not (f.multi is None and f.n_enq == 1 and ntd <= 1 and not (ntd and f.txdrop_at < nt) and (
+                f.r_dev is not None or ntd) and f.r_nrx <= 1 and f.r_nrx + f.r_ndrop <= nt):
+            return False
+        rd = f.r_dev
+        if rd is not None and f.dst != _BROADCAST:
+            who = self.meta_rx.get((f.ch, f.dst))
+            if who is not None and rd != who:
+                return False
+        return True
+
+    def _outcome(self, f: FrameState) -> None:
+        """A clean frame's final outcomes into its flow."""
+        m = self.flows[f.flow]
+        nt = f.n_tx
+        ntd = f.n_txdrop
+        rd = f.r_dev
+        if rd is not None and f.r_nrx == 0 and f.r_ndrop and f.r_at == nt and not (ntd > 0 and f.txdrop_at == nt):
+            bump(m.drops, f.r_reason)
+        if ntd and not f.r_nrx:
+            bump(m.drops, f.txdrop)
+        if nt:
+            m.intended += 1 if (rd is not None or f.dst != _BROADCAST) else 0
+
     def _odd(self, f: FrameState, end: object, horizon: float, violations: list[str],
              in_flight: list[tuple[Any, ...]], limit: int) -> int:
-        """A frame with several receivers, a violation or no outcome: its outcomes and messages one by one;
-        the number of its messages."""
+        """A frame with several receivers, a violation or no outcome: its outcomes and messages; the number
+        of its messages."""
+        msgs, fly = self._judge(f, end, horizon)
+        self._odd_outcome(f)
+        if fly is not None:
+            in_flight.append(fly)
+            self.flows[f.flow].in_flight += 1
+        label = f"{f.dev} seq {f.seq} (flow {self.flows[f.flow].name}): "
+        for msg in msgs:
+            if len(violations) < limit:
+                violations.append(label + msg)
+        return len(msgs)
+
+    def _odd_outcome(self, f: FrameState) -> None:
+        """A frame's final outcomes into its flow, receiver by receiver."""
         m = self.flows[f.flow]
         drops = m.drops
-        label = f"{f.dev} seq {f.seq} (flow {m.name}): "
+        rcv = f.receivers()
+        nt = f.n_tx
+        ntd = f.n_txdrop
+        final = ntd > 0 and f.txdrop_at == nt
+        any_rx = False
+        for r in rcv:
+            if r.n_rx:
+                any_rx = True
+            elif r.n_drop and r.at == nt and not final:
+                bump(drops, r.reason)
+        if ntd and not any_rx:
+            bump(drops, f.txdrop)
+        elif nt and self._nobody(f, rcv):
+            bump(drops, "noaddr")
+        if nt:
+            m.intended += len(rcv) if f.dst == _BROADCAST else 1
+
+    def _nobody(self, f: FrameState, rcv: list[Receiver]) -> bool:
+        """A unicast frame without outcome to an address no modem on its channel has (the meta lists them): a
+        channel without MAC carried it to everyone, as a broadcast (implicit rx), but nobody could receive it:
+        its final outcome is `noaddr`, as for a MAC that refuses it at once."""
+        fdst = f.dst
+        return (not rcv and not f.n_txdrop and fdst != _BROADCAST and fdst >= 0 and f.ch in self.rx_channels
+                and (f.ch, fdst) not in self.meta_rx)
+
+    def _judge(self, f: FrameState, end: object, horizon: float) -> tuple[list[str], tuple[Any, ...] | None]:
+        """A frame's violations (messages) and, if it is in flight at `end`, its (dev, seq, flow, state,
+        t_enq, t_tx)."""
+        name = self.flows[f.flow].name
         msgs: list[str] = []
+        fly: tuple[Any, ...] | None = None
         rcv = f.receivers()
         nt = f.n_tx
         ntd = f.n_txdrop
         tda = f.txdrop_at
         fdst = f.dst
-        any_rx = False
-        final = ntd > 0 and tda == nt
         for r in rcv:
-            if r.n_rx:
-                any_rx = True
-                if r.n_rx > 1:
-                    msgs.append(f"delivered {r.n_rx} times at {r.dev}")
-            elif r.n_drop and r.at == nt and not final:
-                bump(drops, r.reason)
+            if r.n_rx > 1:
+                msgs.append(f"delivered {r.n_rx} times at {r.dev}")
             if r.n_rx + r.n_drop > nt:
                 msgs.append(f"{r.n_rx + r.n_drop} outcomes at {r.dev} for {nt} transmission(s)")
-        txr = f.txdrop
-        if ntd and not any_rx:
-            bump(drops, txr)
-        if nt:
-            m.intended += len(rcv) if fdst == _BROADCAST else 1
         ne = f.n_enq
         if ne == 0:
             msgs.append("no enq record")
@@ -551,7 +720,7 @@ class Fold(Listener):
         if ntd > 1:
             msgs.append(f"dropped {ntd} times at the transmitter")
         if ntd and tda < nt:
-            msgs.append(f"transmitted after its transmitter-side drop ({txr})")
+            msgs.append(f"transmitted after its transmitter-side drop ({f.txdrop})")
         if fdst != _BROADCAST and rcv:
             if len(rcv) > 1:
                 names = ", ".join(sorted(r.dev for r in rcv))
@@ -561,22 +730,17 @@ class Fold(Listener):
                 rdev = rcv[0].dev
                 if addressee is not None and rdev != addressee:
                     msgs.append(f"outcome at {rdev}, not at its addressee {addressee}")
-        if not rcv and not ntd:
+        if not rcv and not ntd and not (nt and self._nobody(f, rcv)):
             if nt == 0:
                 s = self.senders.get(f.dev)
                 if s is not None and s.max_seq > f.seq:
                     msgs.append(f"never transmitted nor dropped, although later frames of {f.dev} were sent")
                 else:
-                    in_flight.append((f.dev, f.seq, m.name, "queued", f.t_enq, None))
-                    m.in_flight += 1
+                    fly = (f.dev, f.seq, name, "queued", f.t_enq, None)
             else:
                 t_tx = f.t_tx
                 if t_tx is not None and t_tx >= end - horizon:  # type: ignore[operator]
-                    in_flight.append((f.dev, f.seq, m.name, "on air", f.t_enq, t_tx))
-                    m.in_flight += 1
+                    fly = (f.dev, f.seq, name, "on air", f.t_enq, t_tx)
                 else:
                     msgs.append(f"transmitted at {t_tx:g} s, no outcome by the end ({end:g} s)")
-        for msg in msgs:
-            if len(violations) < limit:
-                violations.append(label + msg)
-        return len(msgs)
+        return msgs, fly

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis import Accumulator, Analysis
+from ..analysis.read import DEFAULT_HORIZON
 from ..engine.network import Network
 from ..errors import UserError
 from ..trace.events import ArrowSink, CallbackSink, JsonlSink
@@ -33,7 +34,7 @@ class Outputs:
         self.meta = meta
         self.trace_path = None if trace_path is None else Path(trace_path)
         self.plugin = plugin
-        self.acc = Accumulator(meta) if metrics else None
+        self.acc = Accumulator(meta, settle_after=DEFAULT_HORIZON) if metrics else None  # bounded memory
         self.jsonl: JsonlSink | None = None
         self._fh: Any = None
         self._files = ExitStack()

@@ -358,13 +358,25 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                 broker.close()
                 summary["edge"] = broker.edge_summary()
                 summary["ingress_warn"] = broker.ingress_warn_s
+                lost = {dev: {"rx": e["lost"].get("rx", 0), "frames": [list(x) for x in e.get("lost_rx", [])]}
+                        for dev, e in sorted(summary["edge"].items()) if (e.get("lost") or {}).get("rx")}
+                if lost:                        # the trace says which frames it records received never left
+                    extra["lost_at_edge"] = lost
+                stalled = {dev: [[*x, round(w, 3)] for x, w in e["stalled_rx"]]
+                           for dev, e in sorted(summary["edge"].items()) if e.get("stalled_rx")}
+                if stalled:                     # and which waited on a consumer that did not read
+                    extra["stalled_at_edge"] = stalled
             if reason == "duration" and duration is not None:
                 t_stop = min(t_stop, duration)
             if summary["ros2_link"]:            # the links' counters in the trace too (docs/ros2-link.md)
                 extra["ros2_link"] = summary["ros2_link"]
             out.finish(net.end_record(reason, t=t_stop, **extra))     # the last batch, the end record last
             out.__exit__(None, None, None)
-            session.close()
+            try:
+                session.close()
+            except Exception as e:  # noqa: BLE001 - a consumer that does not read holds Zenoh's close up
+                log.warning("the Zenoh session did not close in time (%s): a consumer does not read",
+                            " ".join(str(e).split())[:200])
             faulthandler.cancel_dump_traceback_later()
     _summary(out.result(), summary, net)
     if trace is not None:
@@ -386,7 +398,8 @@ def _summary(analysis: Any, s: dict[str, Any], net: Any) -> None:
 
     console = Console()
     show_metrics(analysis.flows)
-    bad = {k: v for k, v in (s.get("bus") or {}).items() if k not in ("tx_messages", "poses")}
+    bad = {k: v for k, v in (s.get("bus") or {}).items()     # (edge_*: the `lost at the edge` lines below)
+           if k not in ("tx_messages", "poses") and not k.startswith("edge_")}
     if s.get("ros2"):
         bad["ros2"] = s["ros2"]
     end = net.end or {}

@@ -234,6 +234,10 @@ class Broker(Poses, Queries):
         deadline = time.monotonic() + 2.0   # what is queued goes out (a stuck consumer does not hold us)
         for out in self.outboxes.values():
             out.close(max(0.05, deadline - time.monotonic()))
+        for kind in ("rx", "status", "trace"):  # the outboxes' counts, with what was left at close: one count
+            n = sum(out.dropped[kind] for out in self.outboxes.values())
+            if n:
+                self.counters[f"edge_{kind}"] = n
         for ep in self.endpoints.values():
             for e in (ep.token, ep.rx_pub, ep.status_pub):
                 self._undeclare(e)

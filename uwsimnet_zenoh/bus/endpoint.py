@@ -42,7 +42,7 @@ class ModemEndpoint:
            dist: float | None = None, msg: dict[str, Any] | None = None) -> bool:
         """Queue an rx message; False if it was lost at the edge (counted in `out.dropped["rx"]`).  The fields
         are taken now (a frame's `t_tx` changes if it is sent again), encoded on the outbox's thread."""
-        return self.out.put(self._put_rx, (src, dst, data, seq, t_tx, t_rx, dist, msg), "rx")
+        return self.out.put(self._put_rx, (src, dst, data, seq, t_tx, t_rx, dist, msg), "rx", ident=(src, seq))
 
     def status(self, tag: Any, event: str, reason: str | None, t: float, seq: int | None = None) -> bool:
         """Queue a status message (a non-int tag goes as nil); False if lost at the edge."""

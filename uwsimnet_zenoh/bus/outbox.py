@@ -38,10 +38,13 @@ INGRESS_WARN_S = 0.050
 """Ingress delay (wall s, put to engine) above which the broker warns (rate-limited)."""
 LAZY_MAX = 32
 """Non-urgent messages an outbox holds before it wakes its thread anyway (see Outbox.put)."""
+LOST_IDS = 1000
+"""Identities of lost messages (an rx frame's (src, seq)) an outbox keeps for the trace's end record."""
 STALL_S = 0.5
 """A put that takes this long (wall s) waited on a consumer that does not read: counted (`stalled`) and warned.
 Zenoh says nothing of what it then gives up (a BLOCK put waits at most `wait_before_close`, 2 s on our routers:
-bus/session.py), so the wait itself is what the edge reports."""
+bus/session.py, in turn with the other outboxes putting to the same stopped consumer: docs/runtime.md), so the
+wait itself is what the edge reports."""
 
 
 class Outbox:
@@ -66,22 +69,28 @@ class Outbox:
         outbox when its engine is done with what is due); None: it wakes the thread at once."""
         self._notified = False      # the thread has been told about what is queued (or is running)
         self.capacity = capacity
-        self._q: deque[tuple[Callable[[Any], Any], Any, str]] = deque()
+        self._q: deque[tuple[Callable[[Any], Any], Any, str, Any]] = deque()
         self._cond = threading.Condition(threading.Lock())
         self._closing = False
         self.sent = 0
         self.failed = 0
         self.dropped: Counter[str] = Counter()
-        """Messages refused because the outbox was full, by kind (rx, status, trace, ...)."""
+        """Messages refused because the outbox was full, by kind (rx, status, trace, ...), or left at close."""
+        self.lost_ids: list[Any] = []
+        """The `ident` of those that had one (an rx frame's (src, seq)), the first LOST_IDS."""
         self.high_water = 0
         self.stalled: Counter[str] = Counter()
         """Puts that waited STALL_S or more (a consumer not reading; what it did not take may be lost), by kind."""
         self.stalled_max = 0.0
+        self.stalled_ids: list[tuple[Any, float]] = []
+        """(ident, wall s waited) of those stalled puts that had an ident, the first LOST_IDS."""
         self._thread = threading.Thread(target=self._run, name=f"uwsimnet-out-{name}", daemon=True)
         self._thread.start()
 
-    def put(self, fn: Callable[[Any], Any], arg: Any, kind: str = "msg", urgent: bool = True) -> bool:
-        """Queue `fn(arg)`; False (and counted) if the outbox is full or closed.  Never blocks.
+    def put(self, fn: Callable[[Any], Any], arg: Any, kind: str = "msg", urgent: bool = True,
+            ident: Any = None) -> bool:
+        """Queue `fn(arg)`; False (and counted, with `ident` if not None) if the outbox is full or closed.
+        Never blocks.
 
         `urgent` (an rx frame, whose delivery time is modelled): wake the thread and hand it the
         interpreter now.  Not urgent (a status): with `defer`, the wake-up is left to the owner (a
@@ -93,9 +102,9 @@ class Outbox:
         with self._cond:
             q = self._q
             if self._closing or len(q) >= self.capacity:
-                self.dropped[kind] += 1
+                self._lose(kind, ident)
                 return False
-            q.append((fn, arg, kind))
+            q.append((fn, arg, kind, ident))
             n = len(q)
             if n > self.high_water:
                 self.high_water = n
@@ -113,6 +122,12 @@ class Outbox:
             _sleep(0)       # let the woken thread take the interpreter now: the put leaves at once, not
             #                 when the engine next waits (measured: ~0.3 ms less per frame, bench_realtime)
         return True
+
+    def _lose(self, kind: str, ident: Any) -> None:
+        """(under the lock)"""
+        self.dropped[kind] += 1
+        if ident is not None and len(self.lost_ids) < LOST_IDS:
+            self.lost_ids.append(ident)
 
     def wake(self) -> None:
         """Wake the thread for what is queued (the owner's side of `defer`)."""
@@ -140,7 +155,7 @@ class Outbox:
                     cond.wait()
                 if not q:
                     return
-                fn, arg, kind = q.popleft()
+                fn, arg, kind, ident = q.popleft()
             t0 = _clock()
             try:
                 fn(arg)
@@ -151,6 +166,8 @@ class Outbox:
             waited = _clock() - t0
             if waited >= STALL_S:
                 self.stalled[kind] += 1
+                if ident is not None and len(self.stalled_ids) < LOST_IDS:
+                    self.stalled_ids.append((ident, waited))
                 if waited > self.stalled_max:
                     self.stalled_max = waited
                 if sum(self.stalled.values()) in (1, 10, 100, 1000):
@@ -168,8 +185,8 @@ class Outbox:
         if self._thread.is_alive():
             with self._cond:
                 left = len(self._q)
-                for _, _, kind in self._q:
-                    self.dropped[kind] += 1
+                for _, _, kind, ident in self._q:
+                    self._lose(kind, ident)
                 self._q.clear()
             log.warning("%s: %d message(s) not sent at close (a consumer does not read)", self.name, left)
             return False

@@ -139,6 +139,8 @@ class Queries:
             out[dev] = {"lost": dict(ob.dropped) if ob is not None else {}, "refused": lane.refused,
                         "stalled": dict(ob.stalled) if ob is not None else {},
                         "stalled_max": ob.stalled_max if ob is not None else 0.0,
+                        "lost_rx": list(ob.lost_ids) if ob is not None else [],
+                        "stalled_rx": list(ob.stalled_ids) if ob is not None else [],
                         "ingress_n": lane.n, "ingress_mean": lane.delay_sum / lane.n if lane.n else 0.0,
                         "ingress_max": lane.delay_max}
         for name in ("*trace", "*misc"):

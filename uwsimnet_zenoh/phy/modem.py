@@ -159,9 +159,9 @@ class Modem(MacContext):
         if refuse is None:
             if self.closed:
                 refuse = "removed"
-            elif size > self.max_frame_bytes or (
+            elif size > self.max_frame_bytes or 0 < self.fifo_cap < size or (
                     self.framing is not None and self.framing.check_payload(payload) is not None):
-                refuse = "size"
+                refuse = "size"             # (larger than its FIFO: refused idle or busy alike, #41)
             elif dst != BROADCAST and not getattr(mac, "implicit_broadcast", False) \
                     and not self.tx_channel.has_address(dst):
                 refuse = "noaddr"           # nobody on the channel has that address: say so now

@@ -207,6 +207,9 @@ class NativeVocabulary(XmlReader):
             head += f" + headerBytes {dev.header_bytes} = {on_air}" if dev.header_bytes else ""
             self.fail(els["size"], f"size: {flow.size}{head} bytes exceeds maxFrameBytes"
                                    f" {dev.max_frame_bytes} of device {dev.dccomms_id!r}")
+        if 0 < dev.tx_fifo_bytes < on_air:
+            self.fail(els["size"], f"size: {on_air} bytes on air exceed txFifoSize {dev.tx_fifo_bytes} of device"
+                                   f" {dev.dccomms_id!r} (every frame would be refused: it could never wait there)")
         if flow.dst == dev.address:
             self.fail(els["dst"], f"dst: {flow.dst} is the address of the flow's own device {dev.dccomms_id!r}"
                                   " (a frame to itself would be sent and never get an outcome)")
