@@ -85,9 +85,14 @@ def test_payload_the_framing_cannot_carry_is_refused():
         load_scene_text(hello_world(sp, _device("bluerov1-dev", 2), FLOW.format(size=10, iv=1, x="")), "t.xml",
                         on_warning=lambda _w: None)
     # a VariableLength2BPacket carries 2048 bytes (2053 on air): the framing's limit, not the 2048 default
-    text = hello_world(_device("bluerov0-dev", 1), _device("bluerov1-dev", 2),
-                       FLOW.format(size=2048, iv=30, x="<stop>1</stop>"))
+    # (in a FIFO that can hold it: the original's byte-counted FIFO drops a frame larger than itself)
+    big = _device("bluerov0-dev", 1).replace("<txFifoSize>500<", "<txFifoSize>4096<")
+    text = hello_world(big, _device("bluerov1-dev", 2), FLOW.format(size=2048, iv=30, x="<stop>1</stop>"))
     assert [r["size"] for r in _run(text, 20) if r["ev"] == "tx"] == [2053]
+    with pytest.raises(SceneError, match=r"t.xml:\d+: size: 2053 bytes on air exceed txFifoSize 500"):
+        small = hello_world(_device("bluerov0-dev", 1), _device("bluerov1-dev", 2),
+                            FLOW.format(size=2048, iv=30, x="<stop>1</stop>"))
+        load_scene_text(small, "t.xml", on_warning=lambda _w: None)
 
 
 @pytest.mark.parametrize("name", ["packetbuilder", "DataLinkFrameBuilder", "MyBuilder"])
