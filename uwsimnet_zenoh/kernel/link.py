@@ -9,7 +9,9 @@ between a modem and a compiled MAC is then a native call through the class's met
 through a Protocol is a Python method call by name (two or three of them per frame each way: ~15 % of a
 small run's instructions went there).  Interpreted subclasses (a user's MAC, the fake context) still
 override any method: the compiled caller dispatches to them by name.  Data a compiled caller reads is an
-attribute of the class (`phy_busy`, `fifo`, ...), set by the subclass, never a property of its own."""
+attribute of the class (`phy_busy`, `fifo`, ...), set by the subclass, never a property of its own.
+A reception's `rx` is typed Any here: it is a float that may be a kernel.rx.Rx, which a compiled `float`
+parameter would unbox to a double and lose."""
 
 from __future__ import annotations
 
@@ -38,10 +40,12 @@ class MacHooks:
     def on_tx_done(self, frame: Frame) -> None:
         """The last bit of `frame` left our transmitter."""
 
-    def on_rx(self, frame: Frame) -> None:
-        """`frame` arrived intact and is addressed to us (or broadcast)."""
+    def on_rx(self, frame: Frame, rx: Any) -> None:
+        """`frame` arrived intact and is addressed to us (or broadcast); `rx` what the receiver got with it
+        (kernel.rx: the distance, a float, with the channel model's details if it gave any), to hand back
+        with `deliver` or `trace_rx`."""
 
-    def on_overhear(self, frame: Frame) -> None:
+    def on_overhear(self, frame: Frame, rx: Any) -> None:
         """`frame` arrived intact but is addressed to another node (only if the MAC's `overhear`)."""
 
     def on_rx_error(self, frame: Frame, reason: str) -> None:
@@ -125,8 +129,8 @@ class MacContext:
         """When the energy heard at our receiver now ends (now if the channel is idle)."""
         raise NotImplementedError
 
-    def deliver(self, frame: Frame) -> None:
-        """Up to the application (after the rx delay)."""
+    def deliver(self, frame: Frame, rx: Any) -> None:
+        """Up to the application (after the rx delay); `rx` as `on_rx` gave it (the rx event carries it)."""
         raise NotImplementedError
 
     def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
@@ -147,8 +151,8 @@ class MacContext:
     def max_prop_delay(self, distance: float | None = None) -> float:
         raise NotImplementedError
 
-    def trace_rx(self, frame: Frame) -> None:
-        """Trace a control frame received (not delivered)."""
+    def trace_rx(self, frame: Frame, rx: Any) -> None:
+        """Trace a control frame received (not delivered); `rx` as `on_rx` gave it."""
         raise NotImplementedError
 
     def ctrl_frame(self, dst: int, size: int, info: dict, about: Frame | None = None) -> Frame:

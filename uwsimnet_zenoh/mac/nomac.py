@@ -21,7 +21,7 @@ hands the frame to its application, which filters; traced `rx` with `implicit: t
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Any, Final
 
 from mypy_extensions import mypyc_attr
 
@@ -60,13 +60,13 @@ class NoMac(Mac):
             self.ctx.status(frame, "sent")
         self._pump(queued=True)
 
-    def on_rx(self, frame: Frame) -> None:
+    def on_rx(self, frame: Frame, rx: Any) -> None:
         if frame.kind == "data":
-            self.ctx.deliver(frame)
+            self.ctx.deliver(frame, rx)
 
-    def on_overhear(self, frame: Frame) -> None:
+    def on_overhear(self, frame: Frame, rx: Any) -> None:
         if self.implicit_broadcast and frame.kind == "data":
-            self.ctx.deliver(frame)
+            self.ctx.deliver(frame, rx)
 
     def _pump(self, queued: bool) -> None:
         ctx = self.ctx

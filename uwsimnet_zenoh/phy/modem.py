@@ -104,7 +104,6 @@ class Modem(MacContext):
         self.half_duplex = tx_channel is rx_channel
         self._seq = 0
         self._last_delivery = 0.0
-        self._rx_dist = 0.0
         self.loss_random = random.Random(seeds("loss", self.id)).random
         self._jitter = random.Random(seeds("jitter", self.id))
         self.random = random.Random(seeds("mac", self.id)).random
@@ -117,7 +116,7 @@ class Modem(MacContext):
         # the scheduled steps, bound once: a bound method made per event is a lookup by name and an object
         self._on_air_at: Callable[[Frame], None] = self._on_air
         self._tx_end_at: Callable[[Frame], None] = self._tx_end
-        self._deliver_at: Callable[[Frame, float], None] = self._deliver
+        self._deliver_at: Callable[[Frame, Any], None] = self._deliver
 
     @property
     def counters(self) -> dict[str, int]:
@@ -229,23 +228,23 @@ class Modem(MacContext):
     def channel_busy_until(self) -> float:
         return self.rx_channel.busy_until(self.rx_slot)
 
-    def deliver(self, frame: Frame) -> None:
+    def deliver(self, frame: Frame, rx: Any) -> None:
         d = self._rx_delay
         if self._rx_jitter > 0:
             d = max(0.0, self._jitter.gauss(d, self._rx_jitter))
         t = max(self.sched.now + d, self._last_delivery)   # a modem hands frames up in order
         self._last_delivery = t
         if t > self.sched.now:
-            self.sched.at(t, self._deliver_at, frame, self._rx_dist)
+            self.sched.at(t, self._deliver_at, frame, rx)
         else:
-            self._deliver(frame, self._rx_dist)
+            self._deliver(frame, rx)
 
-    def _deliver(self, frame: Frame, dist: float) -> None:
+    def _deliver(self, frame: Frame, rx: Any) -> None:
         now = self.sched.now
         self.delivered += 1
         # a frame for another address handed up anyway (no MAC: the original's implicit broadcast)
         implicit = frame.dst != BROADCAST and frame.dst != self.address
-        self.tracer.emit(now, "rx", self._rx_ch, self.id, frame, dist=dist, implicit=implicit)
+        self.tracer.emit(now, "rx", self._rx_ch, self.id, frame, dist=rx, implicit=implicit)
 
     def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
         """Give `frame` up: traced `drop` with `reason`, and its final status `event` (`dropped`; a MAC
@@ -263,9 +262,9 @@ class Modem(MacContext):
     def tx_time(self, size: int) -> float:
         return size * 8.0 / self.bitrate
 
-    def trace_rx(self, frame: Frame) -> None:
+    def trace_rx(self, frame: Frame, rx: Any) -> None:
         """A MAC control frame reached its MAC intact: traced as `rx`, not handed to the application."""
-        self.tracer.emit(self.sched.now, "rx", self._rx_ch, self.id, frame, dist=self._rx_dist)
+        self.tracer.emit(self.sched.now, "rx", self._rx_ch, self.id, frame, dist=rx)
 
     def max_prop_delay(self, distance: float | None = None) -> float:
         return self.tx_channel.max_prop_delay(self.max_distance if distance is None else distance)
@@ -277,15 +276,14 @@ class Modem(MacContext):
                      dev=self.id, info=info)
 
     # -- the PHY side --------------------------------------------------------------------------
-    def phy_received(self, frame: Frame, dist: float) -> None:
-        """Called by the channel: `frame` (for us or broadcast) arrived intact."""
-        self._rx_dist = dist
-        self.mac.on_rx(frame)
+    def phy_received(self, frame: Frame, rx: Any) -> None:
+        """Called by the channel: `frame` (for us or broadcast) arrived intact; `rx` the distance, with the
+        channel model's details if it gave any (kernel.rx), which the MAC hands back with the frame."""
+        self.mac.on_rx(frame, rx)
 
-    def phy_overheard(self, frame: Frame, dist: float = 0.0) -> None:
+    def phy_overheard(self, frame: Frame, rx: Any) -> None:
         """Called by the channel: `frame`, addressed to another modem, arrived intact (if `overhears`)."""
-        self._rx_dist = dist
-        self.mac.on_overhear(frame)
+        self.mac.on_overhear(frame, rx)
 
     def phy_failed(self, frame: Frame, reason: str) -> None:
         """Called by the channel: `frame`, addressed to us, was lost (prop, col, mult, range, nopose)."""
@@ -317,10 +315,10 @@ class _Unattached(MacHooks):
     def on_tx_done(self, frame: Frame) -> None:
         raise self._bug("on_tx_done")
 
-    def on_rx(self, frame: Frame) -> None:
+    def on_rx(self, frame: Frame, rx: Any) -> None:
         raise self._bug("on_rx")
 
-    def on_overhear(self, frame: Frame) -> None:
+    def on_overhear(self, frame: Frame, rx: Any) -> None:
         raise self._bug("on_overhear")
 
     def on_rx_error(self, frame: Frame, reason: str) -> None:
