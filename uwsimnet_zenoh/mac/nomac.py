@@ -23,8 +23,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Final
 
-from mypy_extensions import mypyc_attr
-
 from ..kernel.frame import Frame
 from .base import Mac, MacContext
 from .registry import register
@@ -37,7 +35,7 @@ IPG: Final = 100e-6
 DELIVERY = ("all", "addressee")
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)      # compiled: registered below (a decorator would not be)
+@register("none", "nomac", "")
 class NoMac(Mac):
     def __init__(self, ctx: MacContext, params: Mapping[str, str]) -> None:
         super().__init__(ctx, params)
@@ -85,5 +83,3 @@ class NoMac(Mac):
         self._wake = None
         self._pump(queued=True)
 
-
-register("none", "nomac", "")(NoMac)

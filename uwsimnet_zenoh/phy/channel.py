@@ -24,7 +24,6 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Final, cast
 
 from ..kernel.frame import BROADCAST, Frame
-from ..kernel.link import Medium
 from ..kernel.rx import with_details
 from .interference import classify, min_sinr_db
 from .models import Query
@@ -135,7 +134,7 @@ class Transmission:
         return self._end
 
 
-class Channel(Medium):
+class Channel:
     """A `CustomCommsChannel`: delay = min_prop_s + prop_s_per_m * distance at transmission start."""
 
     def __init__(self, cid: int, prop_s_per_m: float, min_prop_s: float, sched: Scheduler,

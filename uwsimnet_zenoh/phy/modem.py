@@ -16,10 +16,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 from ..kernel.frame import BROADCAST, Frame
-from ..kernel.link import MacContext, MacHooks, Medium
+from ..kernel.link import MacHooks, Medium
 
 if TYPE_CHECKING:
-    from ..kernel.scheduler import Scheduler
+    from ..kernel.scheduler import Event, Scheduler
     from ..trace.tracer import Tracer
 
 class DeviceParams(Protocol):
@@ -60,10 +60,11 @@ class SinrLossModel(LossModel, Protocol):
     def per_from_sinr(self, sinr_db: float, size_bytes: int) -> Any: ...
 
 
-class Modem(MacContext):
+class Modem:
     """One device: built by the engine's build step, which gives it its loss model and then its MAC
-    (`attach_mac`) before the first frame.  It is its MAC's context (kernel.link.MacContext) and calls
-    it through `MacHooks` (mac.Mac is one): phy never imports mac."""
+    (`attach_mac`) before the first frame.  It is its MAC's context (it has kernel.link.MacContext's shape)
+    and calls it through `MacHooks` (mac.Mac is one): phy never imports mac.  Compiled (a native class),
+    so it names no Protocol as a base."""
 
     def __init__(self, cfg: DeviceParams, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
                  tx_channel: Medium, rx_channel: Medium, seeds: Callable[[str, str], int],
@@ -181,6 +182,13 @@ class Modem(MacContext):
         return frame
 
     # -- what the MAC may do (MacContext) -------------------------------------------------------
+    @property
+    def now(self) -> float:
+        return self.sched.now
+
+    def timer(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event:
+        return self.sched.after(delay, fn, *args)
+
     def fifo_peek(self) -> Frame | None:
         return self.fifo[0] if self.fifo else None
 
@@ -300,7 +308,7 @@ class Modem(MacContext):
         self.rx_channel.detach(self)
 
 
-class _Unattached(MacHooks):
+class _Unattached:
     """The MAC of a modem the build step has not finished: using it is a wiring bug, said clearly."""
 
     def _bug(self, name: str) -> RuntimeError:
