@@ -141,6 +141,22 @@ def test_a_missing_extension_or_manifest_means_pure(tmp_path):
     assert probe(pythonpath=root)["status"] == "pure Python: not compiled"
 
 
+@needs_build
+def test_an_extension_left_by_an_older_list_is_not_imported_when_pure(tmp_path):
+    """A module compiled by an older list (mac.base was, before issue #35 item 5) whose extension is still
+    beside its source: the pure engine imports its .py (the next build removes the file)."""
+    root = _copy_package(tmp_path)
+    def inside(module: str) -> Path:
+        return root / Path(_native.extension(module)).relative_to(ROOT)
+
+    shutil.copy(inside("uwsimnet_zenoh.kernel.frame"), inside("uwsimnet_zenoh.mac.base"))
+    (root / "uwsimnet_zenoh" / "_native.json").unlink()
+    env = {k: v for k, v in os.environ.items() if k != _native.PURE_ENV}
+    out = subprocess.run([sys.executable, "-c", "import uwsimnet_zenoh.mac.base as b; print(b.__file__)"],
+                         env={**env, "PYTHONPATH": str(root)}, capture_output=True, text=True, check=True, cwd=root)
+    assert out.stdout.strip() == str(root / "uwsimnet_zenoh" / "mac" / "base.py")
+
+
 RUN = """
 import json, sys
 from pathlib import Path
