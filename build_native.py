@@ -38,7 +38,10 @@ def built_files() -> list[Path]:
 
 
 def clean() -> None:
-    for p in [Path(_native.MANIFEST), *built_files()]:
+    """Remove the build: the manifest and every extension in the package, the listed modules' and those of
+    modules an older list compiled (left beside their sources, Python would import them)."""
+    suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
+    for p in [Path(_native.MANIFEST), *built_files(), *Path(_native.PKG_DIR).rglob("*" + suffix)]:
         p.unlink(missing_ok=True)
 
 

@@ -23,6 +23,7 @@ LAYERS: dict[str, int] = {
     "traffic": 5,
     "engine": 6, "analysis": 6, "ros2": 6,   # ros2: rmw_zenoh's wire and the ROS<->sim translation, sans-IO
     # ---- the sans-IO line (uwsimnet_gli.wire sits here, outside this package) ----
+    "assembly": 7,                    # a run's outputs (files, never Zenoh): app/ and drivers/ share them
     "bus": 8, "deploy": 8,
     "drivers": 9,
     "bridges": 10,

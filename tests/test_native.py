@@ -53,6 +53,22 @@ def test_the_list_names_modules_that_exist():
         assert Path(_native.source(m)).is_file(), m
 
 
+PLUGIN_SURFACE = ("uwsimnet_zenoh.kernel.link", "uwsimnet_zenoh.mac.base", "uwsimnet_zenoh.mac.nomac",
+                  "uwsimnet_zenoh.mac.testing", "uwsimnet_zenoh.phy.models", "uwsimnet_zenoh.engine.network")
+
+
+def test_what_a_plugin_author_subclasses_or_implements_is_never_compiled():
+    """Issue #35 item 5: only leaves are compiled; the MAC contract, the MAC base classes, the channel-model
+    base and the network stay plain Python (no compiler rule in docs/mac.md), compiled build or not."""
+    import importlib
+
+    assert not set(PLUGIN_SURFACE) & set(_native.MODULES)
+    for m in PLUGIN_SURFACE:
+        assert importlib.import_module(m).__file__.endswith(".py"), m
+    text = (ROOT / "docs" / "mac.md").read_text()
+    assert "mypyc" not in text and "compiled" not in text
+
+
 @needs_build
 def test_this_process_runs_the_compiled_engine():
     import uwsimnet_zenoh.analysis.fold  # noqa: F401
@@ -99,7 +115,7 @@ def test_a_copy_of_the_build_runs_compiled(tmp_path):
 
 
 @needs_build
-@pytest.mark.parametrize("module", ["uwsimnet_zenoh.kernel.frame", "uwsimnet_zenoh.mac.nomac"])
+@pytest.mark.parametrize("module", ["uwsimnet_zenoh.kernel.frame", "uwsimnet_zenoh.phy.modem"])
 def test_an_edited_source_makes_the_whole_build_stale(tmp_path, module):
     """A source edited after the build: every listed module is imported from its .py (the edit runs), none
     of the extensions; not only the edited one, since the compiled modules call each other directly."""
@@ -123,6 +139,22 @@ def test_a_missing_extension_or_manifest_means_pure(tmp_path):
     assert got["loaded"] == [] and got["status"].startswith("pure Python: extension missing")
     (root / "uwsimnet_zenoh" / "_native.json").unlink()
     assert probe(pythonpath=root)["status"] == "pure Python: not compiled"
+
+
+@needs_build
+def test_an_extension_left_by_an_older_list_is_not_imported_when_pure(tmp_path):
+    """A module compiled by an older list (mac.base was, before issue #35 item 5) whose extension is still
+    beside its source: the pure engine imports its .py (the next build removes the file)."""
+    root = _copy_package(tmp_path)
+    def inside(module: str) -> Path:
+        return root / Path(_native.extension(module)).relative_to(ROOT)
+
+    shutil.copy(inside("uwsimnet_zenoh.kernel.frame"), inside("uwsimnet_zenoh.mac.base"))
+    (root / "uwsimnet_zenoh" / "_native.json").unlink()
+    env = {k: v for k, v in os.environ.items() if k != _native.PURE_ENV}
+    out = subprocess.run([sys.executable, "-c", "import uwsimnet_zenoh.mac.base as b; print(b.__file__)"],
+                         env={**env, "PYTHONPATH": str(root)}, capture_output=True, text=True, check=True, cwd=root)
+    assert out.stdout.strip() == str(root / "uwsimnet_zenoh" / "mac" / "base.py")
 
 
 RUN = """

@@ -129,7 +129,7 @@ def test_sim_backend_frames_carry_the_distance_the_channel_used():
 
 
 def test_a_realtime_run_has_the_virtual_runs_outputs_a_compressed_trace_too(tmp_path):
-    """app/outputs.py serves both clocks: a realtime run writes a `.gz` trace, whole, meta first and the end
+    """assembly/outputs.py serves both clocks: a realtime run writes a `.gz` trace, whole, meta first and the end
     record last, every frame conserved, and its summary from the same online metrics."""
     import gzip
     import json
@@ -154,3 +154,19 @@ def test_a_realtime_run_has_the_virtual_runs_outputs_a_compressed_trace_too(tmp_
     a = analyse(trace, horizon=0.0)
     assert a.conservation.ok, a.conservation.violations[:5]
     assert "ab" in r.stdout and sum(m.delivered for m in a.flows.values()) > 0
+
+
+def test_the_simulator_backend_has_the_outputs_of_uwsimnet_run(tmp_path):
+    """One run assembly (assembly/outputs.py): a virtual SimWorld with `trace` and `metrics` writes the trace
+    bytes `uwsimnet run` writes for the same scene and seed, and gives the same online metrics."""
+    from uwsimnet_zenoh.app.virtual import simulate
+
+    sc = three()
+    ours, theirs = tmp_path / "world.jsonl", tmp_path / "run.jsonl"
+    w = SimWorld(sc, clock="virtual", flows=True, seed=sc.simulation.seed, trace=ours, metrics=True)
+    w.run(sc.end_time())
+    w.close()
+    w.close()                                             # once only
+    ref = simulate(sc, seed=sc.simulation.seed, duration=sc.end_time(), trace_path=theirs, progress=False)
+    assert ours.read_bytes() == theirs.read_bytes() and ours.read_bytes().count(b'"ev":"rx"') > 5
+    assert w.analysis().flows == ref.analysis.flows

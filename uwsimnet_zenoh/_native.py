@@ -31,21 +31,21 @@ from typing import Any
 MODULES: tuple[str, ...] = (
     "uwsimnet_zenoh.kernel.scheduler",
     "uwsimnet_zenoh.kernel.frame",
-    "uwsimnet_zenoh.kernel.link",
     "uwsimnet_zenoh.trace.tracer",
-    "uwsimnet_zenoh.traffic.flow",
-    "uwsimnet_zenoh.phy.modem",
     "uwsimnet_zenoh.phy.channel",
-    "uwsimnet_zenoh.mobility.trajectory",
-    "uwsimnet_zenoh.mac.base",
-    "uwsimnet_zenoh.mac.nomac",
-    "uwsimnet_zenoh.engine.network",
+    "uwsimnet_zenoh.phy.modem",
+    "uwsimnet_zenoh.traffic.flow",
     "uwsimnet_zenoh.analysis.fold",
 )
-"""Compiled with mypyc when `make` can (the per-frame path: scheduler, frame, the tracer, flows, modem,
-channel, the pose table, the MAC base and NOMAC, the network, and the metrics' fold).  Their classes become native: no
-monkeypatching them, and a class that Python code subclasses (Mac, OneFrameMac, NoMac) says
-`@mypyc_attr(allow_interpreted_subclasses=True)`."""
+"""Compiled with mypyc when `make` can: the leaves of the per-frame path, each called by plain Python above it:
+the scheduler's heap, the frame record, the output port and trace encoder (tracer), the air log and geometry
+(channel), the metrics' fold, and, because without them the ratio to ns-3 falls below the floor, the modem
+and the flows (docs/benchmarks.md, run 20, says what each buys).  Not the pose table: compiled, it bought
+nothing on a still scene and cost 8 % on a moving one (its work is numpy's).  The plug-in surface is plain
+Python, never listed here: the contracts (kernel.link, Protocols), the MACs and their base classes (mac/),
+the channel-model port (phy.models) and the network (tests/test_native.py holds it).  A compiled class is
+native (no monkeypatching it) and names no Protocol as a base; the port's `Listener` is subclassed by
+Python listeners (`@mypyc_attr(allow_interpreted_subclasses=True)`)."""
 
 GROUP = "uwsimnet_zenoh._engine"
 """The shared library of the compiled modules: uwsimnet_zenoh/_engine__mypyc.<abi>.so."""
@@ -107,11 +107,14 @@ def stale_reason() -> str | None:
 
 
 class _FromSource:
-    """Imports the listed modules from their .py files (ahead of the extension beside them).  A meta path
-    finder by its `find_spec` alone: importlib.abc costs 10 ms of imports."""
+    """Imports the listed modules from their .py files (ahead of the extension beside them), and any other
+    module of the package that has an extension beside its .py (left by a build of an older list, which the
+    next build removes).  A meta path finder by its `find_spec` alone: importlib.abc costs 10 ms of imports."""
 
     def find_spec(self, name: str, path: Any = None, target: Any = None) -> ModuleSpec | None:
         if name in MODULES:
+            return importlib.util.spec_from_file_location(name, source(name))
+        if name.startswith("uwsimnet_zenoh.") and os.path.exists(extension(name)) and os.path.exists(source(name)):
             return importlib.util.spec_from_file_location(name, source(name))
         return None
 

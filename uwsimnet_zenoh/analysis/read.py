@@ -238,19 +238,22 @@ def read_columns(path: str | PathLike[str]) -> tuple[dict[str, Any], dict[str, l
     drops = pc.equal(table.column("ev"), "drop")
     if pc.any(pc.and_(drops, pc.is_null(table.column("reason")))).as_py():
         raise TraceError(f"{p}: drop event without a 'reason'")
-    return meta, {c: table.column(c).to_pylist() for c in COLUMNS}
+    cols = {c: table.column(c).to_pylist() for c in COLUMNS}
+    n = table.num_rows       # `doppler` (optional: traces written before it have none)
+    cols["doppler"] = table.column("doppler").to_pylist() if "doppler" in table.column_names else [None] * n
+    return meta, cols
 
 
 def _column_events(cols: dict[str, list[Any]]) -> Iterator[dict[str, Any]]:
     """The records of a columnar trace, as the JSONL trace has them (optional keys only when set)."""
     keys = REQUIRED[:8] + ("flow", "kind")
-    for row in zip(*(cols[k] for k in keys), cols["reason"], cols["fifo"], cols["dist"], cols["implicit"],
-                   strict=True):
+    for row in zip(*(cols[k] for k in keys), cols["reason"], cols["fifo"], cols["dist"], cols["doppler"],
+                   cols["implicit"], strict=True):
         rec = dict(zip(keys, row[:10], strict=True))
-        for k, v in zip(("reason", "fifo", "dist"), row[10:13], strict=True):
+        for k, v in zip(("reason", "fifo", "dist", "doppler"), row[10:14], strict=True):
             if v is not None:
                 rec[k] = v
-        if row[13]:
+        if row[14]:
             rec["implicit"] = True
         yield rec
 

@@ -4,7 +4,7 @@
     network  the scene (restricted to --channels), flows of the scene except --external-flows
     clock    kernel/realtime.RealtimeClock: the engine on its own thread
     broker   bus/broker.Broker: the modems on their keys, poses, trace, clock, control
-    outputs  the same trace and metrics as a virtual run (app/outputs.py), the trace on disk every second
+    outputs  the same trace and metrics as a virtual run (assembly/outputs.py), the trace on disk every second
 
 SIGINT/SIGTERM (or the duration) stop the engine after the event it is running; then every frame
 without an outcome is dropped `stopped` (its application hears `dropped stopped` if the modem still
@@ -27,6 +27,7 @@ import threading
 import time
 from typing import Any
 
+from ..assembly.outputs import Outputs
 from ..bus.router import StopOnSignal
 from ..bus.session import (
     DEFAULT_ENDPOINT,
@@ -42,7 +43,6 @@ from ..phy.channel import LIST_SLOTS
 from ..scene.model import Scene
 from . import ros2
 from .checks import build_network, plugin_failure, tracing_sink
-from .outputs import Outputs
 
 log = logging.getLogger("uwsimnet.bus.runtime")
 
@@ -275,7 +275,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
         meta.update(clock="realtime", world=world, duration=duration,
                     channels=sorted(net.channels), external_flows=sorted(external))
         # the trace file, the tracing plug-in and the summary's metrics (online, on the engine thread; read at
-        # the end), as a virtual run has them (app/outputs.py); closed in finally, after the engine
+        # the end), as a virtual run has them (assembly/outputs.py); closed in finally, after the engine
         out = Outputs(net, meta, trace, plugin=plugin)
         try:
             out.__enter__()

@@ -1,7 +1,7 @@
 """Virtual-time runs: a scene file to a Network run to its end, its trace, and the summary table.
 
 Used by `uwsimnet run`, the experiments and the tests; its outputs (trace writer, tracing plug-in, online
-metrics) are assembled by app/outputs.py, as for the realtime clock (app/realtime.py).  The summary is
+metrics) are assembled by assembly/outputs.py, as for the realtime clock (app/realtime.py).  The summary is
 computed online, as the run goes (analysis.Accumulator on the output port), so a run without --trace builds
 no record at all and a run with one never reads its trace back; `uwsimnet report` on the trace gives the
 same numbers."""
@@ -17,12 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..analysis import Analysis, flow_metrics, show_metrics
+from ..assembly.outputs import Outputs
 from ..engine.network import Network
 from ..errors import UserError
 from ..kernel.scheduler import Interrupted
 from ..scene.load import SceneError, load_scene
 from .checks import Interrupt, build_network, tracing_sink
-from .outputs import Outputs
 
 
 def _warn(msg: str) -> None:

@@ -9,8 +9,10 @@
     world.close()
 
 With `clock="virtual"` nothing runs by itself: the caller steps time with `world.run(until)` and calls
-`send` from that same thread (deterministic tests).  With the realtime clock every call into the
-network goes through the clock's inbox and every callback runs on the engine thread.
+`send` from that same thread (deterministic tests).  `trace=PATH` and `metrics=True` give the world the
+outputs of `uwsimnet run` (assembly/outputs.py, the one assembly: the same trace bytes, `.gz` and `.arrow`
+too, and the online metrics, `world.analysis()`), closed whole by `close()`.  With the realtime clock
+every call into the network goes through the clock's inbox and every callback runs on the engine thread.
 
 Each received frame is decorated with what a device would measure: the distance between the two
 vehicles when the frame left (the one the channel used, carried by the port's rx event), the channel's
@@ -24,8 +26,10 @@ from __future__ import annotations
 
 import logging
 import math
+from pathlib import Path
 from typing import Any
 
+from ..assembly.outputs import Outputs
 from ..engine.network import Network
 from ..kernel.frame import BROADCAST, Frame
 from ..kernel.realtime import RealtimeClock
@@ -68,7 +72,7 @@ class _Output(Listener):
 
 class SimWorld:
     def __init__(self, scene: Scene, *, clock: str = "realtime", seed: int | None = None, flows: bool = False,
-                 speed: float = 1.0) -> None:
+                 speed: float = 1.0, trace: str | Path | None = None, metrics: bool = False) -> None:
         if clock not in ("realtime", "virtual"):
             raise ValueError(f"clock must be realtime or virtual, got {clock!r}")
         self.net = Network(scene, seed=seed, flows=flows)
@@ -77,6 +81,10 @@ class SimWorld:
                                             if clock == "realtime" else None)
         self.backends: dict[str, SimBackend] = {}
         self.net.tracer.listen(_Output(self), statuses=True)
+        self.outputs: Outputs | None = None
+        if trace is not None or metrics:
+            self.outputs = Outputs(self.net, self.net.meta(), trace, metrics=metrics).__enter__()
+        self._outputs_closed = False
         self._started = False
 
     # -- lifecycle ----------------------------------------------------------------------------------
@@ -98,6 +106,17 @@ class SimWorld:
             self.clock.stop()
             self.clock.join(5.0)
         self._started = False
+        out = self.outputs
+        if out is not None and not self._outputs_closed:
+            self._outputs_closed = True
+            try:
+                out.finish(self.net.end)
+            finally:
+                out.__exit__(None, None, None)
+
+    def analysis(self) -> Any:
+        """The online metrics (`metrics=True`) of what ran so far (analysis.Analysis), or None."""
+        return self.outputs.result() if self.outputs is not None else None
 
     def __enter__(self) -> SimWorld:
         self.start()

@@ -4,28 +4,24 @@ UanPhyListener and UanMac play these parts), `MacHooks`, what a modem tells its 
 channels, `Medium`, what a modem asks the channels it sends and listens on (phy.Channel is one: the channel
 calls the modem and imports it, the modem knows the channel only as this).
 
-They are classes, not Protocols, for speed: compiled with the engine (uwsimnet_zenoh/_native.py), a call
-between a modem and a compiled MAC is then a native call through the class's method table, where a call
-through a Protocol is a Python method call by name (two or three of them per frame each way: ~15 % of a
-small run's instructions went there).  Interpreted subclasses (a user's MAC, the fake context) still
-override any method: the compiled caller dispatches to them by name.  Data a compiled caller reads is an
-attribute of the class (`phy_busy`, `fifo`, ...), set by the subclass, never a property of its own."""
+They are Protocols: plain Python, no compiler rules (only the pure leaves below them are compiled,
+uwsimnet_zenoh/_native.py).  `MacHooks` and `MacContext` also carry defaults (a hook that does nothing, `now`,
+`timer`), which a class that names them as a base inherits; a class that does not is checked by its shape.
+A reception's `rx` is typed Any: it is a float that may be a kernel.rx.Rx (a compiled `float` parameter would
+unbox it to a double and lose its details)."""
 
 from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
-
-from mypy_extensions import mypyc_attr
+from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
     from .frame import Frame
     from .scheduler import Event, Scheduler
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)
-class MacHooks:
+class MacHooks(Protocol):
     """What a modem tells its MAC.  The defaults do nothing: a MAC overrides what it needs (mac.Mac)."""
 
     def ready(self) -> bool:
@@ -38,10 +34,12 @@ class MacHooks:
     def on_tx_done(self, frame: Frame) -> None:
         """The last bit of `frame` left our transmitter."""
 
-    def on_rx(self, frame: Frame) -> None:
-        """`frame` arrived intact and is addressed to us (or broadcast)."""
+    def on_rx(self, frame: Frame, rx: Any) -> None:
+        """`frame` arrived intact and is addressed to us (or broadcast); `rx` what the receiver got with it
+        (kernel.rx: the distance, a float, with the channel model's details if it gave any), to hand back
+        with `deliver` or `trace_rx`."""
 
-    def on_overhear(self, frame: Frame) -> None:
+    def on_overhear(self, frame: Frame, rx: Any) -> None:
         """`frame` arrived intact but is addressed to another node (only if the MAC's `overhear`)."""
 
     def on_rx_error(self, frame: Frame, reason: str) -> None:
@@ -51,10 +49,8 @@ class MacHooks:
         """The modem leaves the simulation: give back what you hold (drop with a reason)."""
 
 
-class Medium:
-    """What a modem asks the channels it sends and listens on (phy.channel.Channel implements it).  A class
-    for the reason above: compiled, the modem's calls into its channel stay native calls (through a Protocol
-    they cost ~5 % of a compiled run, measured)."""
+class Medium(Protocol):
+    """What a modem asks the channels it sends and listens on (phy.channel.Channel has this shape)."""
 
     id: int                                      # the channel id every event of the modem carries
     min_prop_s: float                            # delay = min_prop_s + prop_s_per_m * distance
@@ -86,8 +82,7 @@ class Medium:
         raise NotImplementedError
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)
-class MacContext:
+class MacContext(Protocol):
     """What a modem offers its MAC (docs/mac.md has the table).  The subclass sets the attributes and
     implements the methods; the base's own methods say what is missing."""
 
@@ -125,8 +120,8 @@ class MacContext:
         """When the energy heard at our receiver now ends (now if the channel is idle)."""
         raise NotImplementedError
 
-    def deliver(self, frame: Frame) -> None:
-        """Up to the application (after the rx delay)."""
+    def deliver(self, frame: Frame, rx: Any) -> None:
+        """Up to the application (after the rx delay); `rx` as `on_rx` gave it (the rx event carries it)."""
         raise NotImplementedError
 
     def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
@@ -147,8 +142,8 @@ class MacContext:
     def max_prop_delay(self, distance: float | None = None) -> float:
         raise NotImplementedError
 
-    def trace_rx(self, frame: Frame) -> None:
-        """Trace a control frame received (not delivered)."""
+    def trace_rx(self, frame: Frame, rx: Any) -> None:
+        """Trace a control frame received (not delivered); `rx` as `on_rx` gave it."""
         raise NotImplementedError
 
     def ctrl_frame(self, dst: int, size: int, info: dict, about: Frame | None = None) -> Frame:

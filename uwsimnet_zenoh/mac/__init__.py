@@ -5,7 +5,7 @@
 from importlib import import_module
 from typing import Any
 
-from . import nomac  # noqa: F401 - the built-ins register their names (NOMAC, compiled, at once)
+from . import nomac  # noqa: F401 - the built-ins register their names (NOMAC at once)
 from .base import Mac, MacContext, OneFrameMac
 from .registry import builtin_names, defer, register, resolve
 

@@ -23,6 +23,7 @@ Carrier sense is off by default (the textbook protocol); ACKs are on, as for CS-
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from ..kernel.frame import Frame
 from .base import Mac, MacContext, OneFrameMac
@@ -143,10 +144,10 @@ class CsAloha(OneFrameMac):
         if self.state == SENSE and self._timer is None and not self.ctx.phy_busy:
             self._attempt()         # an attempt that found our transmitter sending an ACK
 
-    def on_rx(self, frame: Frame) -> None:
+    def on_rx(self, frame: Frame, rx: Any) -> None:
         ctx = self.ctx
         if frame.kind != "data":
-            ctx.trace_rx(frame)
+            ctx.trace_rx(frame, rx)
             info = frame.info or {}
             cur = self.cur
             if (info.get("type") == "ACK" and self.state == WAIT_ACK and cur is not None
@@ -158,7 +159,7 @@ class CsAloha(OneFrameMac):
         if self.ack_on and not frame.broadcast:
             self._send_ack(frame)
         if self._dedup.first(frame):
-            ctx.deliver(frame)
+            ctx.deliver(frame, rx)
 
     def _release(self) -> None:
         self._acks.clear()

@@ -14,8 +14,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Final
 
-from mypy_extensions import mypyc_attr
-
 from ..kernel.link import MacContext, MacHooks
 
 if TYPE_CHECKING:
@@ -23,7 +21,6 @@ if TYPE_CHECKING:
     from ..kernel.scheduler import Event
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)      # compiled (uwsimnet_zenoh._native): user MACs subclass it
 class Mac(MacHooks):
     """Base class; the defaults make a MAC that never overhears and ignores failed receptions.  The modem
     calls it through `kernel.link.MacHooks` and offers it a `MacContext` (docs/mac.md)."""
@@ -50,7 +47,6 @@ IDLE: Final = "idle"
 """The state of a OneFrameMac with no frame in service."""
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)
 class OneFrameMac(Mac):
     """A MAC that serves one frame at a time (`cur`, taken from the FIFO when it is idle), with one pending
     timer: CS-ALOHA and S-FAMA.  What is common to them lives here: taking the next frame, and giving

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..kernel.frame import BROADCAST, Frame
 from .aloha import Dedup, max_distance, number
@@ -101,11 +101,11 @@ class DcMac(Mac):
         if self._out and not self.ctx.phy_busy:
             self.ctx.transmit(self._out.popleft())
 
-    def on_rx(self, frame: Frame) -> None:
-        self._heard(frame, mine=True)
+    def on_rx(self, frame: Frame, rx: Any) -> None:
+        self._heard(frame, rx, mine=True)
 
-    def on_overhear(self, frame: Frame) -> None:
-        self._heard(frame, mine=False)
+    def on_overhear(self, frame: Frame, rx: Any) -> None:
+        self._heard(frame, rx, mine=False)
 
     def close(self) -> None:
         self._closed = True
@@ -148,7 +148,7 @@ class DcMac(Mac):
             return f
         return None
 
-    def _heard(self, frame: Frame, mine: bool) -> None:
+    def _heard(self, frame: Frame, rx: Any, mine: bool) -> None:
         ctx = self.ctx
         if frame.kind == "data":
             if self.master and frame.src == self._grantee:
@@ -160,10 +160,10 @@ class DcMac(Mac):
             else:
                 self._acks_to_send.add(frame.src)                # DcMac.cpp:981-984: ACK bit in our next RTS
             if self._dedup.first(frame):
-                ctx.deliver(frame)
+                ctx.deliver(frame, rx)
             return
         if mine:
-            ctx.trace_rx(frame)
+            ctx.trace_rx(frame, rx)
         info = frame.info or {}
         kind = info.get("type")
         if self.master:

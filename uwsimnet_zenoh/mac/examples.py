@@ -19,6 +19,7 @@ guard is shorter than the propagation delay.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from ..kernel.frame import Frame
 from .base import Mac, MacContext
@@ -64,6 +65,6 @@ class Tdma(Mac):
     def on_tx_done(self, frame: Frame) -> None:
         self.ctx.status(frame, "sent")
 
-    def on_rx(self, frame: Frame) -> None:
+    def on_rx(self, frame: Frame, rx: Any) -> None:
         if frame.kind == "data":
-            self.ctx.deliver(frame)
+            self.ctx.deliver(frame, rx)

@@ -21,9 +21,7 @@ hands the frame to its application, which filters; traced `rx` with `implicit: t
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Final
-
-from mypy_extensions import mypyc_attr
+from typing import TYPE_CHECKING, Any, Final
 
 from ..kernel.frame import Frame
 from .base import Mac, MacContext
@@ -37,7 +35,7 @@ IPG: Final = 100e-6
 DELIVERY = ("all", "addressee")
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)      # compiled: registered below (a decorator would not be)
+@register("none", "nomac", "")
 class NoMac(Mac):
     def __init__(self, ctx: MacContext, params: Mapping[str, str]) -> None:
         super().__init__(ctx, params)
@@ -60,13 +58,13 @@ class NoMac(Mac):
             self.ctx.status(frame, "sent")
         self._pump(queued=True)
 
-    def on_rx(self, frame: Frame) -> None:
+    def on_rx(self, frame: Frame, rx: Any) -> None:
         if frame.kind == "data":
-            self.ctx.deliver(frame)
+            self.ctx.deliver(frame, rx)
 
-    def on_overhear(self, frame: Frame) -> None:
+    def on_overhear(self, frame: Frame, rx: Any) -> None:
         if self.implicit_broadcast and frame.kind == "data":
-            self.ctx.deliver(frame)
+            self.ctx.deliver(frame, rx)
 
     def _pump(self, queued: bool) -> None:
         ctx = self.ctx
@@ -85,5 +83,3 @@ class NoMac(Mac):
         self._wake = None
         self._pump(queued=True)
 
-
-register("none", "nomac", "")(NoMac)

@@ -48,7 +48,7 @@ and a fifth, off in every profile unless asked (`twinbot --ack-wait aquasim`):
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..kernel.frame import Frame
 from .aloha import MAC_HEADER, Dedup, ctrl_size, max_distance, next_boundary, number
@@ -165,24 +165,24 @@ class SFama(OneFrameMac):
                 end = (math.ceil(ctx.now / self.slot - EPS) + 1) * self.slot
             self._timer = self._at(end, self._fail)
 
-    def on_rx(self, frame: Frame) -> None:
+    def on_rx(self, frame: Frame, rx: Any) -> None:
         ctx = self.ctx
         if frame.kind == "data":
             if not frame.broadcast:
                 if self.overhear_ends_round and not self._in_round(frame):
-                    self.on_overhear(frame)     # Aqua-Sim: not expected, so neither ACKed nor delivered
+                    self.on_overhear(frame, rx)     # Aqua-Sim: not expected, so neither ACKed nor delivered
                     return
                 self._answer_data(frame)
             if self._dedup.first(frame):
-                ctx.deliver(frame)
+                ctx.deliver(frame, rx)
             return
-        ctx.trace_rx(frame)
+        ctx.trace_rx(frame, rx)
         info = frame.info or {}
         kind = info.get("type")
         cur = self.cur
         if self.overhear_ends_round and ((frame.broadcast and kind == "RTS") or (kind == "CTS" and not (
                 self.state == WAIT_CTS and cur is not None and frame.src == cur.dst and frame.seq == cur.seq))):
-            self.on_overhear(frame)     # Aqua-Sim: an RTS not to our address, a CTS we do not wait for
+            self.on_overhear(frame, rx)     # Aqua-Sim: an RTS not to our address, a CTS we do not wait for
             return
         if frame.broadcast:
             if kind == "RTS":
@@ -200,7 +200,7 @@ class SFama(OneFrameMac):
             ctx.status(cur, "acked")
             self._done()
 
-    def on_overhear(self, frame: Frame) -> None:
+    def on_overhear(self, frame: Frame, rx: Any) -> None:
         now = self.ctx.now
         info = frame.info or {}
         kind = info.get("type") if frame.kind != "data" else "DATA"

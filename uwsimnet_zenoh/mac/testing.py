@@ -55,6 +55,8 @@ class FakeContext(MacContext):
         """Whether `on_air` holds a frame."""
         self.random = random.Random(seed).random
         self._seq = 0
+        self.delivered_rx: list[Any] = []
+        """The `rx` the MAC handed back with each frame it delivered (what `receive` gave it), in order."""
 
     # -- MacContext ---------------------------------------------------------------------------
     def fifo_peek(self) -> Frame | None:
@@ -77,8 +79,9 @@ class FakeContext(MacContext):
     def channel_busy_until(self) -> float:
         return max(self.busy_until, self.now) if self.busy else self.now
 
-    def deliver(self, frame: Frame) -> None:
+    def deliver(self, frame: Frame, rx: Any) -> None:
         self.log.append(("deliver", frame))
+        self.delivered_rx.append(rx)
 
     def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
         self.log.append(("drop", frame, reason))
@@ -94,7 +97,7 @@ class FakeContext(MacContext):
     def max_prop_delay(self, distance: float | None = None) -> float:
         return (self.max_distance if distance is None else distance) * self.prop_s_per_m
 
-    def trace_rx(self, frame: Frame) -> None:
+    def trace_rx(self, frame: Frame, rx: Any) -> None:
         self.log.append(("trace_rx", frame))
 
     def ctrl_frame(self, dst: int, size: int, info: dict, about: Frame | None = None) -> Frame:
@@ -148,13 +151,14 @@ class Harness:
         self.mac.on_tx_done(frame)
         return frame
 
-    def receive(self, frame: Frame) -> None:
-        """`frame` arrived intact, addressed to us or broadcast."""
-        self.mac.on_rx(frame)
+    def receive(self, frame: Frame, rx: Any = 100.0) -> None:
+        """`frame` arrived intact, addressed to us or broadcast; `rx` what the receiver got with it (kernel.rx:
+        the distance in m, or an `Rx` with the channel model's details)."""
+        self.mac.on_rx(frame, rx)
 
-    def overhear(self, frame: Frame) -> None:
+    def overhear(self, frame: Frame, rx: Any = 100.0) -> None:
         """`frame` arrived intact, addressed to another node (only MACs with `overhear` get this)."""
-        self.mac.on_overhear(frame)
+        self.mac.on_overhear(frame, rx)
 
     def lose(self, frame: Frame, reason: str = "col") -> None:
         """A frame addressed to us was lost."""

@@ -24,7 +24,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Final, cast
 
 from ..kernel.frame import BROADCAST, Frame
-from ..kernel.link import Medium
+from ..kernel.rx import with_details
 from .interference import classify, min_sinr_db
 from .models import Query
 
@@ -68,7 +68,7 @@ class Transmission:
     (LIST_SLOTS), else an array; `dd` the distances alike).  `own` is the sender's slot on this channel if
     it listens there (half duplex: its own signal occupies its receiver), else -1."""
 
-    __slots__ = ("frame", "sender", "t0", "dur", "dl", "own", "_arr", "_end", "max_end", "dd", "pow", "acq")
+    __slots__ = ("frame", "sender", "t0", "dur", "dl", "own", "_arr", "_end", "max_end", "dd", "pow", "acq", "info")
 
     def __init__(self, frame: Frame, sender: Modem, t0: float, dur: float, dl: list[float] | np.ndarray,
                  dd: list[float] | np.ndarray, max_end: float, own: int = -1) -> None:
@@ -84,6 +84,8 @@ class Transmission:
         self.max_end = max_end
         self.pow: np.ndarray | None = None    # received power per listener slot, linear (SINR mode only)
         self.acq: dict[int, bool] | None = None   # slot -> acquired (SINR mode, capture "first" only)
+        self.info: dict[int, tuple[Any, Any]] | None = None
+        """slot -> (Doppler factor, received level dB) of the model's answer, when it gave either."""
 
     def distance(self, j: int) -> float:
         """The distance to slot j, m (from the list when there is one: no numpy scalar made)."""
@@ -92,6 +94,24 @@ class Transmission:
             dlist: list[float] = d
             return dlist[j]
         return float(d[j])
+
+    def rx(self, j: int) -> Any:
+        """What slot j's modem gets with the frame (kernel.rx): the distance, with the model's details if any."""
+        info = self.info
+        if info is None:
+            return self.distance(j)
+        hit = info.get(j)
+        if hit is None:
+            return self.distance(j)
+        return with_details(self.distance(j), hit[0], hit[1])
+
+    def keep_details(self, targets: Any, doppler: Any, level: Any) -> None:
+        """Keep the model's Doppler factors and received levels (either may be None) of `targets`."""
+        info = self.info
+        if info is None:
+            info = self.info = {}
+        for n, j in enumerate(targets):
+            info[j] = (None if doppler is None else float(doppler[n]), None if level is None else float(level[n]))
 
     @property
     def powers(self) -> np.ndarray:
@@ -114,7 +134,7 @@ class Transmission:
         return self._end
 
 
-class Channel(Medium):
+class Channel:
     """A `CustomCommsChannel`: delay = min_prop_s + prop_s_per_m * distance at transmission start."""
 
     def __init__(self, cid: int, prop_s_per_m: float, min_prop_s: float, sched: Scheduler,
@@ -315,6 +335,8 @@ class Channel(Medium):
                 per = float(ans.per[0])
                 if ans.delay is not None:
                     delay = self._retime(tx, (j,), ans.delay)
+                if ans.doppler is not None or ans.level_db is not None:
+                    tx.keep_details((j,), ans.doppler, ans.level_db)
             end = float(delay[j]) + now + dur          # = (delay + now + dur)[j], the same double
             if sinr:
                 self.sched.at(end, self._end_sinr_at, tx, j, sender.loss_random(), per, True)
@@ -349,6 +371,8 @@ class Channel(Medium):
             pers = ans.per
             if ans.delay is not None:
                 delay = self._retime(tx, targets, ans.delay)
+            if ans.doppler is not None or ans.level_db is not None:
+                tx.keep_details(targets, ans.doppler, ans.level_db)
         rnd = sender.loss_random
         at = self.sched.at
         ends = None if isinstance(delay, list) else tx.end
@@ -414,14 +438,14 @@ class Channel(Medium):
         frame = tx.frame
         if not intended:
             if not (lost or col):
-                modem.phy_overheard(frame, tx.distance(j))
+                modem.phy_overheard(frame, tx.rx(j))
             return
         if lost or col:
             reason = "mult" if (lost and col) else ("prop" if lost else "col")
             self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=tx.distance(j))
             modem.phy_failed(frame, reason)
         else:
-            modem.phy_received(frame, tx.distance(j))
+            modem.phy_received(frame, tx.rx(j))
 
     # -- SINR mode (capture) ------------------------------------------------------------------
     def _powers(self, sender: Modem, dist: Any) -> np.ndarray:
@@ -466,7 +490,7 @@ class Channel(Medium):
         frame = tx.frame
         if not intended:
             if reason is None:
-                modem.phy_overheard(frame, tx.distance(j))
+                modem.phy_overheard(frame, tx.rx(j))
             return
         if reason is not None:
             self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=tx.distance(j))
@@ -474,7 +498,7 @@ class Channel(Medium):
         else:
             if spans:
                 self.captures += 1
-            modem.phy_received(frame, tx.distance(j))
+            modem.phy_received(frame, tx.rx(j))
 
     def _acquired(self, g: Transmission, j: int) -> bool:
         """Capture "first": did slot j lock onto `g` when it arrived?  Only if it was not transmitting, not

@@ -16,10 +16,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 from ..kernel.frame import BROADCAST, Frame
-from ..kernel.link import MacContext, MacHooks, Medium
+from ..kernel.link import MacHooks, Medium
 
 if TYPE_CHECKING:
-    from ..kernel.scheduler import Scheduler
+    from ..kernel.scheduler import Event, Scheduler
     from ..trace.tracer import Tracer
 
 class DeviceParams(Protocol):
@@ -60,10 +60,11 @@ class SinrLossModel(LossModel, Protocol):
     def per_from_sinr(self, sinr_db: float, size_bytes: int) -> Any: ...
 
 
-class Modem(MacContext):
+class Modem:
     """One device: built by the engine's build step, which gives it its loss model and then its MAC
-    (`attach_mac`) before the first frame.  It is its MAC's context (kernel.link.MacContext) and calls
-    it through `MacHooks` (mac.Mac is one): phy never imports mac."""
+    (`attach_mac`) before the first frame.  It is its MAC's context (it has kernel.link.MacContext's shape)
+    and calls it through `MacHooks` (mac.Mac is one): phy never imports mac.  Compiled (a native class),
+    so it names no Protocol as a base."""
 
     def __init__(self, cfg: DeviceParams, vehicle: str, vehicle_index: int, sched: Scheduler, tracer: Tracer,
                  tx_channel: Medium, rx_channel: Medium, seeds: Callable[[str, str], int],
@@ -104,7 +105,6 @@ class Modem(MacContext):
         self.half_duplex = tx_channel is rx_channel
         self._seq = 0
         self._last_delivery = 0.0
-        self._rx_dist = 0.0
         self.loss_random = random.Random(seeds("loss", self.id)).random
         self._jitter = random.Random(seeds("jitter", self.id))
         self.random = random.Random(seeds("mac", self.id)).random
@@ -117,7 +117,7 @@ class Modem(MacContext):
         # the scheduled steps, bound once: a bound method made per event is a lookup by name and an object
         self._on_air_at: Callable[[Frame], None] = self._on_air
         self._tx_end_at: Callable[[Frame], None] = self._tx_end
-        self._deliver_at: Callable[[Frame, float], None] = self._deliver
+        self._deliver_at: Callable[[Frame, Any], None] = self._deliver
 
     @property
     def counters(self) -> dict[str, int]:
@@ -182,6 +182,13 @@ class Modem(MacContext):
         return frame
 
     # -- what the MAC may do (MacContext) -------------------------------------------------------
+    @property
+    def now(self) -> float:
+        return self.sched.now
+
+    def timer(self, delay: float, fn: Callable[..., Any], *args: Any) -> Event:
+        return self.sched.after(delay, fn, *args)
+
     def fifo_peek(self) -> Frame | None:
         return self.fifo[0] if self.fifo else None
 
@@ -229,23 +236,23 @@ class Modem(MacContext):
     def channel_busy_until(self) -> float:
         return self.rx_channel.busy_until(self.rx_slot)
 
-    def deliver(self, frame: Frame) -> None:
+    def deliver(self, frame: Frame, rx: Any) -> None:
         d = self._rx_delay
         if self._rx_jitter > 0:
             d = max(0.0, self._jitter.gauss(d, self._rx_jitter))
         t = max(self.sched.now + d, self._last_delivery)   # a modem hands frames up in order
         self._last_delivery = t
         if t > self.sched.now:
-            self.sched.at(t, self._deliver_at, frame, self._rx_dist)
+            self.sched.at(t, self._deliver_at, frame, rx)
         else:
-            self._deliver(frame, self._rx_dist)
+            self._deliver(frame, rx)
 
-    def _deliver(self, frame: Frame, dist: float) -> None:
+    def _deliver(self, frame: Frame, rx: Any) -> None:
         now = self.sched.now
         self.delivered += 1
         # a frame for another address handed up anyway (no MAC: the original's implicit broadcast)
         implicit = frame.dst != BROADCAST and frame.dst != self.address
-        self.tracer.emit(now, "rx", self._rx_ch, self.id, frame, dist=dist, implicit=implicit)
+        self.tracer.emit(now, "rx", self._rx_ch, self.id, frame, dist=rx, implicit=implicit)
 
     def drop(self, frame: Frame, reason: str, event: str = "dropped") -> None:
         """Give `frame` up: traced `drop` with `reason`, and its final status `event` (`dropped`; a MAC
@@ -263,9 +270,9 @@ class Modem(MacContext):
     def tx_time(self, size: int) -> float:
         return size * 8.0 / self.bitrate
 
-    def trace_rx(self, frame: Frame) -> None:
+    def trace_rx(self, frame: Frame, rx: Any) -> None:
         """A MAC control frame reached its MAC intact: traced as `rx`, not handed to the application."""
-        self.tracer.emit(self.sched.now, "rx", self._rx_ch, self.id, frame, dist=self._rx_dist)
+        self.tracer.emit(self.sched.now, "rx", self._rx_ch, self.id, frame, dist=rx)
 
     def max_prop_delay(self, distance: float | None = None) -> float:
         return self.tx_channel.max_prop_delay(self.max_distance if distance is None else distance)
@@ -277,15 +284,14 @@ class Modem(MacContext):
                      dev=self.id, info=info)
 
     # -- the PHY side --------------------------------------------------------------------------
-    def phy_received(self, frame: Frame, dist: float) -> None:
-        """Called by the channel: `frame` (for us or broadcast) arrived intact."""
-        self._rx_dist = dist
-        self.mac.on_rx(frame)
+    def phy_received(self, frame: Frame, rx: Any) -> None:
+        """Called by the channel: `frame` (for us or broadcast) arrived intact; `rx` the distance, with the
+        channel model's details if it gave any (kernel.rx), which the MAC hands back with the frame."""
+        self.mac.on_rx(frame, rx)
 
-    def phy_overheard(self, frame: Frame, dist: float = 0.0) -> None:
+    def phy_overheard(self, frame: Frame, rx: Any) -> None:
         """Called by the channel: `frame`, addressed to another modem, arrived intact (if `overhears`)."""
-        self._rx_dist = dist
-        self.mac.on_overhear(frame)
+        self.mac.on_overhear(frame, rx)
 
     def phy_failed(self, frame: Frame, reason: str) -> None:
         """Called by the channel: `frame`, addressed to us, was lost (prop, col, mult, range, nopose)."""
@@ -302,7 +308,7 @@ class Modem(MacContext):
         self.rx_channel.detach(self)
 
 
-class _Unattached(MacHooks):
+class _Unattached:
     """The MAC of a modem the build step has not finished: using it is a wiring bug, said clearly."""
 
     def _bug(self, name: str) -> RuntimeError:
@@ -317,10 +323,10 @@ class _Unattached(MacHooks):
     def on_tx_done(self, frame: Frame) -> None:
         raise self._bug("on_tx_done")
 
-    def on_rx(self, frame: Frame) -> None:
+    def on_rx(self, frame: Frame, rx: Any) -> None:
         raise self._bug("on_rx")
 
-    def on_overhear(self, frame: Frame) -> None:
+    def on_overhear(self, frame: Frame, rx: Any) -> None:
         raise self._bug("on_overhear")
 
     def on_rx_error(self, frame: Frame, reason: str) -> None:

@@ -15,6 +15,7 @@ from typing import IO, Any
 import msgspec
 
 from ..kernel.frame import Frame
+from ..kernel.rx import doppler as rx_doppler
 from .tracer import (
     ROW_FIELDS,
     Batch,
@@ -51,6 +52,9 @@ def row_record(t9: float, r: Row) -> Record:
         rec["fifo"] = fifo
     if dist is not None:
         rec["dist"] = round(float(dist), 3) if math.isfinite(dist) else None
+        dop = rx_doppler(dist)
+        if dop is not None:
+            rec["doppler"] = dop
     if r[13]:
         rec["implicit"] = True
     return rec
@@ -81,7 +85,7 @@ def _dumps(rec: Any) -> str:
 
 class _Line(msgspec.Struct, omit_defaults=True, gc=False):
     """One event as msgspec encodes it: the record's keys in the record's order; the optional ones
-    (reason, fifo, dist; implicit when False) left out, as `record()` does."""
+    (reason, fifo, dist, doppler; implicit when False) left out, as `record()` does."""
 
     t: float
     ev: str
@@ -96,6 +100,7 @@ class _Line(msgspec.Struct, omit_defaults=True, gc=False):
     reason: str | None = None
     fifo: int | None = None
     dist: float | None = None
+    doppler: float | None = None
     implicit: bool = False
 
 
@@ -135,17 +140,18 @@ class JsonlSink(Listener):
     def event(self, t: float, ev: str, ch: int, dev: str, frame: Frame, reason: str | None,
               fifo: int | None, dist: float | None, implicit: bool = False) -> None:
         t = round(t, 9)
+        d = dop = None
+        plain = 1e-4 <= t < 1e15 or t == 0.0                   # _plain, inlined (per event)
         if dist is not None:
-            dist = round(float(dist), 3)
-            if not (1e-4 <= dist < 1e15 or dist == 0.0):       # _plain, inlined (per event)
-                self(record(t, ev, ch, dev, frame, reason, fifo, dist, implicit))
-                return
-        if not (1e-4 <= t < 1e15 or t == 0.0):
+            d = round(float(dist), 3)
+            dop = rx_doppler(dist)
+            plain = plain and _plain(d) and (dop is None or _plain(dop))
+        if not plain:
             self(record(t, ev, ch, dev, frame, reason, fifo, dist, implicit))
             return
         buf = self._buf
         buf.append(_Line(t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
-                         reason, fifo, dist, bool(implicit)))
+                         reason, fifo, d, dop, bool(implicit)))
         if len(buf) >= self._batch:
             self.flush()
 
@@ -194,7 +200,7 @@ class ArrowSink(Listener):
     (and so by `uwsimnet report` and `plot`) when the file name ends in `.arrow`."""
 
     COLUMNS = ("t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind", "reason", "fifo", "dist",
-               "implicit")
+               "implicit", "doppler")
 
     def __init__(self, path: Any, meta: Record, batch: int = 65536) -> None:
         try:
@@ -205,7 +211,7 @@ class ArrowSink(Listener):
         self._pa = pa
         s, i, f = pa.string(), pa.int64(), pa.float64()
         d = pa.dictionary(pa.int32(), s)
-        types = (f, d, i, d, i, i, i, i, d, d, d, i, f, pa.bool_())
+        types = (f, d, i, d, i, i, i, i, d, d, d, i, f, pa.bool_(), f)
         self._types = types
         self.schema = pa.schema([pa.field(n, ty) for n, ty in zip(self.COLUMNS, types, strict=True)],
                                 metadata={"uwsimnet.meta": _dumps(meta)})
@@ -230,6 +236,7 @@ class ArrowSink(Listener):
         c[11].append(fifo)
         c[12].append(None if dist is None else round(float(dist), 3))
         c[13].append(bool(implicit))
+        c[14].append(None if dist is None else rx_doppler(dist))
         if len(c[0]) >= self._batch:
             self.flush()
 
@@ -245,6 +252,7 @@ class ArrowSink(Listener):
         dist = cols[12]
         c[12].extend(None if d is None else round(float(d), 3) for d in dist)
         c[13].extend(map(bool, cols[13]))
+        c[14].extend(None if d is None else rx_doppler(d) for d in dist)
         if len(c[0]) >= self._batch:
             self.flush()
 

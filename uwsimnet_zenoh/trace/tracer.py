@@ -36,6 +36,8 @@ from typing import Any, Final
 from mypy_extensions import mypyc_attr
 
 from ..kernel.frame import Frame
+from ..kernel.rx import Rx
+from ..kernel.rx import doppler as rx_doppler
 
 Record = dict[str, Any]
 
@@ -118,9 +120,10 @@ def _plain(x: Any) -> bool:
 
 def lines(rows: list[Row], t9: list[Any], make: Any) -> tuple[list[Any], list[int]]:
     """The JSONL writer's lines of a batch: `make(t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, fifo,
-    dist, implicit)` per row (its msgspec struct, trace/events.py) with the time and distance its record says
-    (`t9`, round(float(dist), 3)) and `implicit` a bool; and the indices of the lines with a number msgspec
-    would write otherwise than Python's json (`_plain`), which the writer writes with the reference encoder."""
+    dist, doppler, implicit)` per row (its msgspec struct, trace/events.py) with the time and distance its record
+    says (`t9`, round(float(dist), 3)), the reception's Doppler factor (kernel.rx; None) and `implicit` a bool;
+    and the indices of the lines with a number msgspec would write otherwise than Python's json (`_plain`),
+    which the writer writes with the reference encoder."""
     if len(rows) != len(t9):
         raise ValueError(f"{len(rows)} rows and {len(t9)} times")
     out: list[Any] = []
@@ -134,14 +137,20 @@ def lines(rows: list[Row], t9: list[Any], make: Any) -> tuple[list[Any], list[in
         else:
             plain = _plain(t)
         dist: Any = r[12]
+        dop: Any = None
         if dist is not None:
+            if type(dist) is Rx:        # a reception with the channel model's details (kernel.rx)
+                dop = rx_doppler(dist)
             d = round_fast(float(dist), 1000.0, 3)
             dist = d
             if plain:
                 plain = 1e-4 <= d < 1e15 or d == 0.0
+            if dop is not None and plain:
+                plain = _plain(dop)
         if not plain:
             odd.append(k)
-        out.append(make(t, r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], dist, bool(r[13])))
+        out.append(make(t, r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], dist, dop,
+                        bool(r[13])))
     return out, odd
 
 
@@ -350,6 +359,9 @@ def record(t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None 
         rec["fifo"] = fifo
     if dist is not None:
         rec["dist"] = round(float(dist), 3) if math.isfinite(dist) else None   # JSON has no inf/NaN
+        dop = rx_doppler(dist)
+        if dop is not None:
+            rec["doppler"] = dop    # the reception's Doppler factor, when the channel model gave one
     if implicit:
         rec["implicit"] = True      # rx of a frame addressed to another modem (no MAC: implicit broadcast)
     return rec

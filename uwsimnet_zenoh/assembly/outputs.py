@@ -10,7 +10,8 @@ In order: the trace writer if a path is given (JSONL, `.gz` compressed, `.arrow`
 one record, written from the port's batches), the scene's tracing plug-in (records), then the online metrics
 (after the writer, so that they share its batches: analysis.Accumulator.follow).  Leaving the `with`, even
 on an error or ^C, the last batch is written and the file closed whole.  The realtime broker adds its own
-listener (bus/broker.py); the simulator backend (drivers/sim_backend.py) has no outputs but its listener.
+listener (bus/broker.py); the simulator backend (drivers/sim_backend.py: `SimWorld(trace=..., metrics=...)`)
+takes the same outputs beside its own listener.
 """
 
 from __future__ import annotations
