@@ -89,3 +89,26 @@ def test_moving_table_keeps_links_whose_ends_are_unchanged(model: bellhop.Bellho
     again = _arr(model.answer(_q(poses, 2)))
     assert _same(again, _fresh(model, _q(poses, 2)))
     assert again[1][1] != before[1][1]
+
+
+def test_receivers_out_of_reach_are_not_looked_up(monkeypatch: pytest.MonkeyPatch, model: bellhop.BellhopModel) -> None:
+    """A receiver beyond the sender's maxDistance is dropped by the channel (`range`) without reading the
+    model's answer: the model answers it lost without a lookup, and every other receiver as before."""
+    from uwsimnet_zenoh.scene import load_scene_text
+
+    text = (DATA / "ocean-shadow.xml").read_text().replace(
+        "<sourceLevel>184</sourceLevel>", "<sourceLevel>184</sourceLevel><maxDistance>500</maxDistance>", 1)
+    near = Network(load_scene_text(text, str(DATA / "ocean-shadow.xml"))).modems["buoy-modem"].error
+    assert near.reach == (0.0, 500.0)
+    poses = PoseTable(["tx", "a", "b"])
+    poses.set_static("tx", (0.0, 0.0, -10.0))
+    poses.set_static("a", (300.0, 0.0, -20.0))
+    poses.set_static("b", (1000.0, 0.0, -100.0))
+    calls = []
+    real = near._point
+    monkeypatch.setattr(near, "_point", lambda *a: calls.append(a) or real(*a))
+    got = _arr(near.answer(_q(poses, 2)))
+    assert len(calls) == 1                                                # only the receiver in reach
+    full = _fresh(model, _q(poses, 2))
+    assert _same(got[:, 0], full[:, 0])
+    assert got[0, 1] == 1.0 and full[0, 1] < 1.0                          # b: lost unread, though lit

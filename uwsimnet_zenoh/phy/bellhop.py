@@ -338,6 +338,9 @@ class BellhopModel(ChannelModel):
         self.snr_const = self.link.sl_db - self.link.nl_db + self.link.di_db      # SNR = this - TL, dB
         self.to_ebn0 = 10 ** (0.1 * (self.link.bw_gain_db - m.implementation_loss_db))   # B/R / impl. loss
         self.bit_s = 1.0 / float(m.bitrate_bps)
+        dev = ctx.device
+        self.reach = (float(getattr(dev, "min_distance", 0.0)), float(getattr(dev, "max_distance", math.inf)))
+        """The sender's min/maxDistance: the channel drops a receiver outside them (`range`) unasked."""
         isi = params.get("isi", "off")
         if isi not in ("on", "off"):
             raise ValueError(f"isi must be on or off, not {isi!r}")
@@ -442,24 +445,38 @@ class BellhopModel(ChannelModel):
         got = [links.get((tx, rx, size)) for rx in rxs]
         if None not in got:
             return Answer(*(list(c) for c in zip(*got, strict=True)))
-        ans = self._answer_few(tx, rxs, size)
+        ans = self._answer_few(tx, rxs, size, q.distances)
         if len(links) + len(rxs) > MEMO:
             links.clear()
         for n, rx in enumerate(rxs):
             links[(tx, rx, size)] = (ans.per[n], ans.delay[n], ans.level_db[n], ans.doppler[n])  # type: ignore[index]
         return ans
 
-    def _answer_few(self, tx: Any, rxs: list[Any], size: int) -> Answer:
+    def _answer_few(self, tx: Any, rxs: list[Any], size: int, dist: Any) -> Answer:
         zs0 = -tx.position[2]
         off_s = min(abs(zs0 - s) for s in self._axes[0])
         tx_moving = tx.velocity != (0.0, 0.0, 0.0)
+        rr = self._axes[2]
+        r_lo, r_hi = rr[0], rr[-1]
+        x0, y0 = tx.position[0], tx.position[1]
         per: list[float] = []
         delays: list[float] = []
         levels: list[float] = []
         dopplers: list[float] = []
-        for rx in rxs:
-            t, d, f = self._at(tx, rx.position, zs0, off_s)
+        lo, hi = self.reach
+        for n, rx in enumerate(rxs):
             moving = rx.velocity != (0.0, 0.0, 0.0)
+            far = not lo <= dist[n] <= hi             # out of the sender's reach: the channel drops it
+            if far or not (moving or tx_moving):      # (`range`) without reading this answer; still ends
+                p = rx.position                       # off the grid's ranges: lost, what the lookup gives
+                r = math.hypot(p[0] - x0, p[1] - y0)
+                if far or r < r_lo or r > r_hi:
+                    per.append(1.0)
+                    delays.append(math.nan)
+                    levels.append(math.nan)
+                    dopplers.append(1.0)
+                    continue
+            t, d, f = self._at(tx, rx.position, zs0, off_s)
             at = rx.position
             if moving and math.isfinite(d):           # motion during flight: the arrival where the receiver
                 for _ in range(3):                    # is then (fixed point; contraction |v| / c ~ 1e-3)
