@@ -7,7 +7,7 @@ The group of the paper's Section 3.2 (a surface buoy and four BlueROV explorers,
 20-byte broadcast commands and the explorers' 400-byte images to the buoy, NOMAC, CS-ALOHA and S-FAMA), moved
 out to where the water matters: three explorers survey 30 m x 30 m boxes 440-470 m from the buoy (west, south,
 east), lit by the buoy; the fourth (north) surveys 650-680 m out, beyond the edge of the buoy's shadow zone
-(which begins near 560 m for a 5 m source and a 15 m receiver); explorers on opposite sides (880-1150 m apart)
+(which begins near 540 m for a 5 m source and a 15 m receiver); explorers on opposite sides (880-1150 m apart)
 are in each other's shadow.  The survey is the paper's lawnmower (four 30 m legs) at a third of its speed, so that it
 fills an 1800 s run.  Each (MAC, channel model, seed) is one virtual
 run of `scene_xml`; per link (a flow to one receiver) the delivery ratio and the mean delay, with 95 %
