@@ -440,19 +440,23 @@ class BellhopModel(ChannelModel):
         arriving, so the table is `moving` and its version changes at every sample)."""
         links = self._links
         tx = q.sender
-        rxs = q.receivers
         size = q.size
-        got = [links.get((tx, rx, size)) for rx in rxs]
+        lo, hi = self.reach                  # out of the sender's reach: the channel drops the receiver
+        dist, veh = q.distances, q._vehicles  # (`range`) without reading its answer: no state, no lookup
+        rxs = [q._state(veh[s]) if lo <= dist[n] <= hi else None for n, s in enumerate(q.slots)]
+        got = [FAR if rx is None else links.get((tx, rx, size)) for rx in rxs]
         if None not in got:
             return Answer(*(list(c) for c in zip(*got, strict=True)))
-        ans = self._answer_few(tx, rxs, size, q.distances)
+        ans = self._answer_few(tx, rxs, size)
         if len(links) + len(rxs) > MEMO:
             links.clear()
         for n, rx in enumerate(rxs):
-            links[(tx, rx, size)] = (ans.per[n], ans.delay[n], ans.level_db[n], ans.doppler[n])  # type: ignore[index]
+            if rx is not None:
+                links[(tx, rx, size)] = (ans.per[n], ans.delay[n], ans.level_db[n], ans.doppler[n])  # type: ignore
         return ans
 
-    def _answer_few(self, tx: Any, rxs: list[Any], size: int, dist: Any) -> Answer:
+    def _answer_few(self, tx: Any, rxs: list[Any], size: int) -> Answer:
+        """`answer` on Python floats; a receiver None (out of reach) is lost, unread."""
         zs0 = -tx.position[2]
         off_s = min(abs(zs0 - s) for s in self._axes[0])
         tx_moving = tx.velocity != (0.0, 0.0, 0.0)
@@ -463,19 +467,15 @@ class BellhopModel(ChannelModel):
         delays: list[float] = []
         levels: list[float] = []
         dopplers: list[float] = []
-        lo, hi = self.reach
-        for n, rx in enumerate(rxs):
-            moving = rx.velocity != (0.0, 0.0, 0.0)
-            far = not lo <= dist[n] <= hi             # out of the sender's reach: the channel drops it
-            if far or not (moving or tx_moving):      # (`range`) without reading this answer; still ends
-                p = rx.position                       # off the grid's ranges: lost, what the lookup gives
-                r = math.hypot(p[0] - x0, p[1] - y0)
-                if far or r < r_lo or r > r_hi:
-                    per.append(1.0)
-                    delays.append(math.nan)
-                    levels.append(math.nan)
-                    dopplers.append(1.0)
-                    continue
+        for rx in rxs:
+            moving = rx is not None and rx.velocity != (0.0, 0.0, 0.0)
+            if rx is None or not (moving or tx_moving) and not r_lo <= math.hypot(
+                    rx.position[0] - x0, rx.position[1] - y0) <= r_hi:
+                per.append(FAR[0])                    # out of reach, or still ends off the grid's ranges:
+                delays.append(FAR[1])                 # lost, what the lookup gives, without it
+                levels.append(FAR[2])
+                dopplers.append(FAR[3])
+                continue
             t, d, f = self._at(tx, rx.position, zs0, off_s)
             at = rx.position
             if moving and math.isfinite(d):           # motion during flight: the arrival where the receiver
@@ -601,6 +601,9 @@ def mean_speeds(profile: Any, z0: float, z: np.ndarray) -> np.ndarray:
         out = (b - a) / (slowness(b) - slowness(a))
     return np.where(same, np.interp(a, ds, cs), out)
 
+
+FAR = (1.0, math.nan, math.nan, 1.0)
+"""(PER, delay, level, Doppler) of a receiver out of the sender's reach: lost, never read by the channel."""
 
 MEMO = 4096
 """Answers (and links) a model keeps before it starts again: bounds the memory of a long run whose
