@@ -80,7 +80,8 @@ to 70-90 % of a core: those rows measured a saturated broker, not the stall)."""
 
 CHANNEL_MODEL = ""
 """`--channel-model bellhop`: the line's channel is acoustic (EvoLogics S2CR 18/34 presets) in the summer-thermocline
-environment, its model Bellhop on a cached grid (computed by `uwsimnet validate` before the broker starts)."""
+environment, its model Bellhop on a cached grid (computed by `uwsimnet validate` before the broker starts).
+`acoustic`: the same modems and environment on the straight-path acoustic model (what Bellhop adds)."""
 BELLHOP_ENV = """<environment><preset>summer-thermocline</preset><bathymetry>flat 100</bathymetry></environment>"""
 BELLHOP_CHANNEL = """<AcousticCommsChannel><id>0</id><channelModel><name>bellhop</name><sources>0.5</sources>
 <maxDepth>20</maxDepth><depthStep>1</depthStep><maxRange>400</maxRange><rangeStep>5</rangeStep></channelModel>
@@ -102,8 +103,9 @@ def scene_xml(n: int, world: str, *, zero_delay: bool = False, flood: bool = Fal
 <intrinsicDelay>0</intrinsicDelay><maxDistance>{reach}</maxDistance><rateErrorModel><errorUnit>packet</errorUnit>
 <errorRateExpr>0</errorRateExpr></rateErrorModel></CustomCommsDevice></vehicle>""")
     chans = f"<CustomCommsChannel><id>0</id><propTimeIncPerMeter>{prop}</propTimeIncPerMeter></CustomCommsChannel>"
-    if CHANNEL_MODEL == "bellhop" and not zero_delay and not flood:
-        chans = BELLHOP_ENV + BELLHOP_CHANNEL
+    if CHANNEL_MODEL in ("bellhop", "acoustic") and not zero_delay and not flood:
+        chans = BELLHOP_ENV + (BELLHOP_CHANNEL if CHANNEL_MODEL == "bellhop" else
+                               "<AcousticCommsChannel><id>0</id></AcousticCommsChannel>")
         vs = [f"""<vehicle><name>v{i}</name><poseSource>zenoh</poseSource><AcousticCommsDevice>
 <dccommsId>m{i}</dccommsId><mac>{addr(i)}</mac><txChannelId>0</txChannelId><rxChannelId>0</rxChannelId><preset>evologics-s2cr-18-34</preset>
 <txFifoSize>100000</txFifoSize><maxDistance>{reach}</maxDistance></AcousticCommsDevice></vehicle>""" for i in range(n)]
@@ -423,8 +425,9 @@ def main() -> None:
     ap.add_argument("--modems", default="2,16,64")
     ap.add_argument("--round-trips", type=int, default=2000)
     ap.add_argument("--markdown", action="store_true")
-    ap.add_argument("--channel-model", choices=["", "bellhop"], default="",
-                    help="bellhop: the line's modems acoustic, the channel model Bellhop on a cached grid")
+    ap.add_argument("--channel-model", choices=["", "bellhop", "acoustic"], default="",
+                    help="bellhop: the line's modems acoustic, the channel model Bellhop on a cached grid;"
+                         " acoustic: the same modems and water on the straight path (Bellhop's share)")
     ap.add_argument("--broker-zenoh-config", metavar="FILE", help="the broker's Zenoh configuration file")
     ap.add_argument("--rt", type=int, default=0, help="SCHED_RR priority for broker and apps (0: normal)")
     ap.add_argument("--stall", type=int, default=0, metavar="N",

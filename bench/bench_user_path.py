@@ -22,6 +22,7 @@ turn); ns-3's own Simulator::Run time is shown too.  frames = transmissions (tx)
     python -m venv /tmp/ns3venv && /tmp/ns3venv/bin/pip install --no-deps ns3    # outside the repo (headers, libs)
     .venv/bin/python bench/bench_user_path.py --ns3 /tmp/ns3venv/lib/python3.11/site-packages/ns3
     .venv/bin/python bench/bench_user_path.py --big          # N = 10 000, 100 000 frames: wall and peak RSS
+    .venv/bin/python bench/bench_user_path.py --nodes 256 --modes half,half-bellhop --repeat 3   # issue #37
 """
 
 from __future__ import annotations
@@ -46,28 +47,52 @@ FRAME_TIME = (PAYLOAD + HEADER) * 8 / BITRATE
 UWSIMNET = [str(Path(sys.executable).parent / "uwsimnet")]
 
 
-def scene_xml(n: int, duration: float, *, half: bool, load: float = 1.0, seed: int = 1) -> str:
+BELLHOP_DEPTH = 50.0
+"""Depth of every modem in the `bellhop` variant (m): under the summer thermocline's layer, so that the
+500 m links are lit and both models deliver alike."""
+
+
+def scene_xml(n: int, duration: float, *, half: bool, load: float = 1.0, seed: int = 1,
+              model: str = "straight") -> str:
     """The reference ALOHA scene as a scene file (the same as experiments.aloha.scene, sensors' rx channel
-    0 for half duplex, 1 for full duplex)."""
+    0 for half duplex, 1 for full duplex).  `model` "bellhop": the same sensors, traffic and MAC as acoustic
+    modems (EvoLogics S2CR 18/34's carrier and source level, 1000 bps, 3-byte header) at 50 m depth in the
+    summer-thermocline preset, the channel answered by the ray-traced `bellhop` model from a grid computed
+    before the timed runs (`uwsimnet validate`; delay-spread loss off, docs/ocean.md)."""
     interval = n * FRAME_TIME / load
-    dev = ("<CustomCommsDevice><dccommsId>{id}</dccommsId><mac>{mac}</mac><txChannelId>0</txChannelId>"
-           "<rxChannelId>{rx}</rxChannelId><bitrate>1000</bitrate><txFifoSize>0</txFifoSize>"
-           "<headerBytes>3</headerBytes><rateErrorModel><errorUnit>packet</errorUnit>"
-           "<errorRateExpr>0</errorRateExpr></rateErrorModel>"
-           "<macProtocol><name>none</name><delivery>addressee</delivery></macProtocol></CustomCommsDevice>")
+    if model == "bellhop":
+        dev = ("<AcousticCommsDevice><dccommsId>{id}</dccommsId><mac>{mac}</mac><txChannelId>0</txChannelId>"
+               "<rxChannelId>{rx}</rxChannelId><preset>evologics-s2cr-18-34</preset><bitrate>1000</bitrate>"
+               "<txFifoSize>0</txFifoSize><headerBytes>3</headerBytes>"
+               "<macProtocol><name>none</name><delivery>addressee</delivery></macProtocol></AcousticCommsDevice>")
+        cm = (f"<channelModel><name>bellhop</name><sources>{BELLHOP_DEPTH!r}</sources><maxDepth>100</maxDepth>"
+              "<depthStep>2</depthStep><maxRange>600</maxRange><rangeStep>25</rangeStep><isi>off</isi>"
+              "</channelModel>")
+        channels = ["<environment><origin>41.38 2.18</origin><preset>summer-thermocline</preset>"
+                    "<bathymetry>flat 1000</bathymetry></environment>",
+                    f"<AcousticCommsChannel><id>0</id>{cm}</AcousticCommsChannel>",
+                    f"<AcousticCommsChannel><id>1</id>{cm}</AcousticCommsChannel>"]
+        z = -BELLHOP_DEPTH
+    else:
+        dev = ("<CustomCommsDevice><dccommsId>{id}</dccommsId><mac>{mac}</mac><txChannelId>0</txChannelId>"
+               "<rxChannelId>{rx}</rxChannelId><bitrate>1000</bitrate><txFifoSize>0</txFifoSize>"
+               "<headerBytes>3</headerBytes><rateErrorModel><errorUnit>packet</errorUnit>"
+               "<errorRateExpr>0</errorRateExpr></rateErrorModel>"
+               "<macProtocol><name>none</name><delivery>addressee</delivery></macProtocol></CustomCommsDevice>")
+        channels = ["<CustomCommsChannel><id>0</id><propTimeIncPerMeter>0.6666666666666666</propTimeIncPerMeter>"
+                    "<minPropTime>0</minPropTime></CustomCommsChannel>",
+                    "<CustomCommsChannel><id>1</id><propTimeIncPerMeter>0.6666666666666666</propTimeIncPerMeter>"
+                    "<minPropTime>0</minPropTime></CustomCommsChannel>"]
+        z = 0.0
     out = ["<UWSimScene>",
            f"<simulation><duration>{duration!r}</duration><seed>{seed}</seed><clock>virtual</clock>"
-           f"<world>aloha-{'half' if half else 'full'}-{n}</world></simulation>",
-           "<CustomCommsChannel><id>0</id><propTimeIncPerMeter>0.6666666666666666</propTimeIncPerMeter>"
-           "<minPropTime>0</minPropTime></CustomCommsChannel>",
-           "<CustomCommsChannel><id>1</id><propTimeIncPerMeter>0.6666666666666666</propTimeIncPerMeter>"
-           "<minPropTime>0</minPropTime></CustomCommsChannel>",
-           f"<vehicle><name>sink</name><position>0 0 0</position>{dev.format(id='sink', mac=0, rx=0)}</vehicle>"]
+           f"<world>aloha-{'half' if half else 'full'}-{n}</world></simulation>", *channels,
+           f"<vehicle><name>sink</name><position>0 0 {z!r}</position>{dev.format(id='sink', mac=0, rx=0)}</vehicle>"]
     for i in range(n):
         a = 2 * math.pi * i / n
         mac = i + 1 + (i >= 254)
-        out.append(f"<vehicle><name>sensor{i}</name><position>{RADIUS * math.cos(a)!r} {RADIUS * math.sin(a)!r} 0"
-                   f"</position>{dev.format(id=f's{i}', mac=mac, rx=0 if half else 1)}</vehicle>")
+        out.append(f"<vehicle><name>sensor{i}</name><position>{RADIUS * math.cos(a)!r} {RADIUS * math.sin(a)!r}"
+                   f" {z!r}</position>{dev.format(id=f's{i}', mac=mac, rx=0 if half else 1)}</vehicle>")
         out.append(f"<flow><name>s{i}</name><src>s{i}</src><dst>0</dst><size>{PAYLOAD}</size>"
                    f"<interval>{interval!r}</interval><arrival>poisson</arrival></flow>")
     out.append("</UWSimScene>")
@@ -116,6 +141,8 @@ def bests(cmds: list[list[str]], repeat: int) -> list[tuple[float, int, str]]:
 
 
 def bench_n(n: int, frames: int, binary: Path | None, modes: list[str], tmp: Path, repeat: int = 1) -> list[dict]:
+    """`modes`: half, full, or either with "-bellhop" (the `bellhop` channel model: its grid is computed here,
+    before any timed run, into the cache of $UWSIMNET_CACHE)."""
     duration = round(frames / (1 / FRAME_TIME), 3)     # G = 1: one frame time of offered traffic per T
     rows = []
     cmds: list[list[str]] = []
@@ -123,7 +150,12 @@ def bench_n(n: int, frames: int, binary: Path | None, modes: list[str], tmp: Pat
         cmds.append([str(binary), str(n), "1", str(duration), "1"])
     for mode in modes:
         path = tmp / f"aloha-{mode}-{n}.xml"
-        path.write_text(scene_xml(n, duration, half=mode == "half"))
+        half, _, model = mode.partition("-")
+        path.write_text(scene_xml(n, duration, half=half == "half", model=model or "straight"))
+        if model:
+            v = subprocess.run([*UWSIMNET, "validate", str(path)], capture_output=True, text=True)
+            if v.returncode != 0:
+                raise SystemExit(f"{path.name}: {v.stderr.strip()}")
         cmds += [[sys.executable, "-c", BARE, str(path)], [*UWSIMNET, "run", str(path)],
                  [*UWSIMNET, "run", str(path), "--trace", str(tmp / f"t-{mode}.jsonl")]]
     got = bests(cmds, repeat)
@@ -186,7 +218,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--binary", type=Path, default=Path("/tmp/ns3_aloha"))
     ap.add_argument("--no-ns3", action="store_true", help="our side only")
     ap.add_argument("--nodes", default="16,64,256,1024")
-    ap.add_argument("--modes", default="half,full")
+    ap.add_argument("--modes", default="half,full",
+                    help="half, full, half-bellhop, full-bellhop (the ray-traced channel model; needs Bellhop"
+                         " or a cached grid)")
     ap.add_argument("--frames", type=int, default=20000, help="about this many frames offered per run")
     ap.add_argument("--big", action="store_true", help="only the N = 10 000, 100 000 frames run (memory)")
     ap.add_argument("--repeat", type=int, default=1, help="each process this many times, the fastest kept")

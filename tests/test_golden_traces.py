@@ -25,7 +25,8 @@ def test_every_scene_has_a_golden_hash():
 
 
 @pytest.mark.parametrize("scene, seed", CASES)
-def test_trace_is_byte_identical(scene, seed, tmp_path):
+def test_trace_is_byte_identical(scene, seed, tmp_path, monkeypatch):
+    monkeypatch.setenv("UWSIMNET_CACHE", str(ROOT / "tests" / "data" / "twinbot-ocean"))  # the Bellhop scene's grid
     sc = load_scene_file(str(ROOT / scene))
     duration = min(sc.simulation.duration or GOLDEN["duration_cap_s"], GOLDEN["duration_cap_s"])
     out = tmp_path / "t.jsonl"

@@ -27,7 +27,7 @@ def _twinbot_seeds(a: argparse.Namespace, out: Path) -> int:
     print(f"figures (bars with 95 % intervals) and results in {c.out}/")
     return 1 if report["failed"] else 0
 
-NAMES = ("phy-layer", "twinbot", "hil-formation", "table1")
+NAMES = ("phy-layer", "twinbot", "hil-formation", "table1", "twinbot-ocean")
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -41,7 +41,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     ap.add_argument("--speed", type=float, help="hil-formation: simulated seconds per wall second (default 1)")
     ap.add_argument("--seeds", help="phy-layer: PER per distance bin over these seeds (Wilson intervals);"
                                     " twinbot: the three MACs over these seeds with 95 %% intervals;"
-                                    " table1: the saturation search over these seeds (default 1-3)")
+                                    " table1: the saturation search over these seeds (default 1-3);"
+                                    " twinbot-ocean: the runs per MAC and channel model (default 1-10)")
     ap.add_argument("--profile", choices=("default", "original", "original-ackwait"), default="default",
                     help="twinbot, table1: 'original' = the original experiment's set-up: framing and Aqua-Sim's"
                          " MAC header (+10 B on DATA, headerBytes), 500 B FIFO, no retry limit, unicast"
@@ -79,6 +80,12 @@ def run(a: argparse.Namespace) -> int:
     out = Path(a.out or f"out/{a.name}")
     if a.seeds is not None and a.name == "twinbot":
         return _twinbot_seeds(a, out)
+    if a.name == "twinbot-ocean":                # the acoustic group in a thermocline (issue #37)
+        from ..experiments import twinbot_ocean
+        twinbot_ocean.run(out, seeds=parse_seeds(a.seeds or "1-10"))
+        print((out / "summary.md").read_text())
+        print(f"figures and traces in {out}/")
+        return 0
     if a.name == "table1":                       # the saturation search of Table 1 (issue #16)
         from ..experiments import table1
         table1.run(out, seeds=parse_seeds(a.seeds or "1-3"), profile=a.profile)
