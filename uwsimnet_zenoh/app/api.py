@@ -29,7 +29,7 @@ from ..analysis.channels import channel_metrics
 from ..errors import UserError
 from ..scene.model import Scene
 from .checks import build_network, plugin_failure, tracing_sink
-from .outputs import Outputs
+from ..assembly.outputs import Outputs
 from .overrides import apply
 from .virtual import load_scene_file
 
