@@ -26,10 +26,10 @@ from typing import Any
 
 from ..analysis import analyse
 from ..analysis.channels import channel_metrics
+from ..assembly.outputs import Outputs
 from ..errors import UserError
 from ..scene.model import Scene
 from .checks import build_network, plugin_failure, tracing_sink
-from ..assembly.outputs import Outputs
 from .overrides import apply
 from .virtual import load_scene_file
 
