@@ -227,3 +227,11 @@ def test_the_public_face():
             "assert issubclass(uw.SceneError, uw.UwsimnetError) and 'zenoh' not in sys.modules")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
+
+
+def test_a_file_does_one_job_within_750_lines_and_the_broker_under_500():
+    """Issue #35's size rule: no module over 750 lines; the broker, once 766, stays a turn's glue (< 500)."""
+    sizes = {p.relative_to(ROOT).as_posix(): len(p.read_text().splitlines())
+             for d in (PKG, GLI) for p in d.rglob("*.py")}
+    assert {f: n for f, n in sizes.items() if n > 750} == {}
+    assert sizes["uwsimnet_zenoh/bus/broker.py"] < 500

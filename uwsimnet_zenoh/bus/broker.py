@@ -10,10 +10,9 @@ on the key space of docs/gli-protocol.md:
   extrapolated with its velocity if it has one); the broker publishes the poses of the scene-driven
   vehicles it carries at their `poseRate` (default 10 Hz).
 * `trace/<channel>` repeats every trace record; `clock` carries simulation time (and the wall epoch).
-* `control/<op>` queryables (bus/control.py); `driver/real` tokens of real modem drivers (HIL swap):
-  while one is present the broker stops serving that id (its sim token goes away, the simulated modem
-  leaves the channel and what it held ends `dropped` reason `swapped`, its tx is ignored); when the
-  token goes the device is re-added from the scene and served again.
+* `control/<op>` queryables (bus/control.py); `driver/real` tokens of real drivers (HIL swap): while one is
+  present the broker stops serving that id (its sim token goes, the simulated modem leaves the channel, what
+  it held ends `dropped` `swapped`, its tx is ignored); when it goes the device is re-added and served again.
 
 Threading (the turn's rules: kernel/realtime.py): Zenoh callbacks run on Zenoh's network thread and hand
 raw bytes on: a tx message to its modem's ingress `Lane` (bounded, taken round-robin: a flood on one modem
@@ -234,10 +233,9 @@ class Broker(Poses, Queries):
         deadline = time.monotonic() + 2.0   # what is queued goes out (a stuck consumer does not hold us)
         for out in self.outboxes.values():
             out.close(max(0.05, deadline - time.monotonic()))
-        for kind in ("rx", "status", "trace"):  # the outboxes' counts, with what was left at close: one count
-            n = sum(out.dropped[kind] for out in self.outboxes.values())
-            if n:
-                self.counters[f"edge_{kind}"] = n
+        for k in ("rx", "status", "trace"):  # the outboxes' counts, with what was left at close: one count
+            if n := sum(out.dropped[k] for out in self.outboxes.values()):
+                self.counters[f"edge_{k}"] = n      # set, not added: the outboxes' totals are the count
         for ep in self.endpoints.values():
             for e in (ep.token, ep.rx_pub, ep.status_pub):
                 self._undeclare(e)
