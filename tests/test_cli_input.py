@@ -254,3 +254,16 @@ def test_fuzz_report_on_mutated_traces_never_tracebacks(tmp_path, capsys, good_t
                 json.loads(out, parse_constant=lambda c: pytest.fail(f"{c} in report --json"))
         else:
             one_line_exit_2(rc, err)
+
+
+def test_report_on_a_meta_whose_device_has_no_integer_address(tmp_path, capsys, good_trace):
+    """Found by the fuzz above (byte 195 of the meta made a space): an address that is not an integer matched no
+    frame in pure Python and broke the compiled fold's typed table; now it matches none in both."""
+    meta = json.loads(good_trace[0])
+    meta["devices"]["b-m"]["address"] = None
+    p = tmp_path / "t.jsonl"
+    p.write_text("\n".join([json.dumps(meta), *good_trace[1:]]) + "\n")
+    rc, out, err = run_cli(["report", str(p)], capsys)
+    assert "Traceback" not in err
+    if rc != 0:
+        one_line_exit_2(rc, err)

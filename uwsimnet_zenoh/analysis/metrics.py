@@ -52,10 +52,10 @@ class DeviceMap:
             for dev, d in devices.items():
                 if not isinstance(d, Mapping):
                     continue
-                addr = d.get("address")
-                if "tx_channel" in d:
+                addr = d.get("address")         # frames carry int addresses: any other (a damaged meta) matches none
+                if "tx_channel" in d and is_int(addr):
                     self._meta_tx.setdefault((d["tx_channel"], addr), dev)
-                if "rx_channel" in d:
+                if "rx_channel" in d and is_int(addr):
                     self._meta_rx.setdefault((d["rx_channel"], addr), dev)
                 hb = d.get("header_bytes")
                 self.header[dev] = hb if is_int(hb) else 0
