@@ -5,7 +5,8 @@ a grid per (environment, frequency, source depths), cached on disk by content ha
 
 Per receiver: horizontal range r and the two depths -> TL (incoherent, Bellhop run type 'I') and the first
 significant arrival (run type 'A': the earliest arrival within 20 dB of the strongest) by trilinear
-interpolation in (source depth, receiver depth, range); then, with the device's acoustic mode (its
+interpolation in (source depth, receiver depth, range), the arrival along one path where the cell's corners'
+are different paths (`same_path`); then, with the device's acoustic mode (its
 `AcousticLink`: SL, NL, DI, B/R, modulation), Eb/N0 = SL - TL - NL + DI + 10 log10(B/R) - implementation loss,
 BER by the modulation, PER = 1 - (1 - BER)^(8 L).  Delay spread as a loss, opt-in (`<isi>on</isi>`: off by
 default, since the modems users run equalise or spread their symbols and would otherwise look far worse than at
@@ -42,6 +43,7 @@ from .bellhop_grid import (
     LATE_S,
     Grid,
     GridSpec,
+    Paths,
     _axis,
     bty_text,
     cache_dir,
@@ -53,7 +55,9 @@ from .bellhop_grid import (
     program_tag,
     read_arrivals,
     read_shd,
+    reference,
     run_bellhop,
+    same_path,
 )
 from .models import Answer, ChannelModel, ModelContext, Query
 from .ocean import doppler_factor
@@ -139,10 +143,11 @@ class BellhopModel(ChannelModel):
         self.grid = _load(str(self.path), self.path.stat().st_mtime_ns)
         self._tables()
         self.grids = [_load(str(p), p.stat().st_mtime_ns) for p in paths]
-        self._by_sector = [_prepared(g, self.bit_s, self.isi)[:4] for g in self.grids] if self.sectors else []
-        self._by_cell = [np.stack([_prepared(g, self.bit_s, self.isi)[4]
-                                   for g in self.grids[c * self.sectors:(c + 1) * self.sectors]])
-                         for c in range(len(self.cells))] if self.sectors else []
+        self._by_sector = [_prepared(g, self.bit_s, self.isi)[:5] for g in self.grids] if self.sectors else []
+        cells = [self.grids[c * self.sectors:(c + 1) * self.sectors] for c in range(len(self.cells))]
+        self._by_cell = [np.stack([_prepared(g, self.bit_s, self.isi)[5] for g in gs]) for gs in cells]
+        self._by_cell_paths = [(np.stack([g.delay for g in gs]), Paths.stack([g.paths() for g in gs]))
+                               for gs in cells]
 
     def grid_for(self, tx: Any, rx: Any) -> Grid:
         """The grid a frame from position tx to position rx reads: the grid of a flat bottom, else that of the
@@ -160,14 +165,16 @@ class BellhopModel(ChannelModel):
     def _tables(self) -> None:
         """The grid as Python lists for the per-frame path (a few receivers: math beats numpy's call cost) and
         as one stacked array for the numpy path; shared by the models of one grid, bit rate and ISI setting."""
-        self._axes, self._tl, self._dl, self._late, self._stack = _prepared(self.grid, self.bit_s, self.isi)
+        self._axes, self._tl, self._dl, self._late, self._paths, self._stack = _prepared(self.grid, self.bit_s,
+                                                                                          self.isi)
         self._memo: dict[tuple[int, int, tuple[int, ...]], Answer] = {}
         self._links: dict[tuple[Any, Any, int], tuple[float, float, float, float]] = {}
 
     def _point(self, zs: float, zr: float, r: float, tables: Any = None) -> tuple[float, float, float]:
         """TL, delay and late fraction at one geometry (trilinear, depths held at the grid's ends; nan beyond
-        its ranges): the same arithmetic as `Grid.lookup`, on lists (`tables`: a sector's, else the grid's)."""
-        (sd, rd, rr), tl, dl, late = tables or (self._axes, self._tl, self._dl, self._late)
+        its ranges; the delay within one path): the same arithmetic as `Grid.lookup`, on lists (`tables`: a
+        sector's, else the grid's)."""
+        (sd, rd, rr), tl, dl, late, paths = tables or (self._axes, self._tl, self._dl, self._late, self._paths)
         if r < rr[0] or r > rr[-1]:
             return math.nan, math.nan, 0.0
         (i, i1, f), (j, j1, g), (k, k1, h) = _locate(sd, zs), _locate(rd, zr), _locate(rr, r)
@@ -177,6 +184,12 @@ class BellhopModel(ChannelModel):
             lo = (1 - g) * ((1 - h) * a[j][k] + h * a[j][k1]) + g * ((1 - h) * a[j1][k] + h * a[j1][k1])
             hi = (1 - g) * ((1 - h) * b[j][k] + h * b[j][k1]) + g * ((1 - h) * b[j1][k] + h * b[j1][k1])
             out.append((1 - f) * lo + f * hi)
+        row = paths.row_list[i][j][k]
+        if row >= 0:                                            # the first arrival changes path in this cell:
+            val = [dl[c0][c1][c2] for c0 in (i, i1) for c1 in (j, j1) for c2 in (k, k1)]    # follow one path
+            wt = [w0 * w1 * w2 for w0 in (1 - f, f) for w1 in (1 - g, g) for w2 in (1 - h, h)]
+            along = paths.along_list[row][reference(val, wt, paths.bound_list[row])]
+            out[1] = sum(w * x for w, x in zip(wt, along, strict=True))
         return out[0], out[1], out[2]
 
     def _at(self, tx: Any, p: Any, zs0: float, off_s: float) -> tuple[float, float, float]:
@@ -325,8 +338,9 @@ class BellhopModel(ChannelModel):
             k = np.round(np.arctan2(p[:, 1] - tx[1], p[:, 0] - tx[0]) / step).astype(int) % self.sectors
             g = self.grids[cell * self.sectors]
             with np.errstate(invalid="ignore"):          # below the bottom: TL inf, 0 * inf is nan (lost)
-                v = _trilinear_stack(g.sd, g.rd, g.rr, self._by_cell[cell], np.full(len(p), -tx[2]), -p[:, 2], r,
-                                     lead=k)
+                zs = np.full(len(p), -tx[2])
+                v = _trilinear_stack(g.sd, g.rd, g.rr, self._by_cell[cell], zs, -p[:, 2], r, lead=k)
+                v[:, 1] = same_path(g.sd, g.rd, g.rr, *self._by_cell_paths[cell], zs, -p[:, 2], r, v[:, 1], lead=k)
             v[(r < g.rr[0]) | (r > g.rr[-1])] = (math.nan, math.nan, 0.0)
             return v[:, 0], v[:, 1], v[:, 2]
         sd = self.grid.sd
@@ -336,6 +350,7 @@ class BellhopModel(ChannelModel):
         swap = off_s > np.abs(zr[:, None] - sd).min(axis=1)          # reciprocity, as `_at`
         zs, zr = np.where(swap, zr, zs), np.where(swap, zs, zr)
         v = _trilinear_stack(sd, self.grid.rd, self.grid.rr, self._stack, zs, zr, r)
+        v[:, 1] = same_path(sd, self.grid.rd, self.grid.rr, self.grid.delay, self.grid.paths(), zs, zr, r, v[:, 1])
         v[(r < self.grid.rr[0]) | (r > self.grid.rr[-1])] = (math.nan, math.nan, 0.0)
         return v[:, 0], v[:, 1], v[:, 2]
 
@@ -388,14 +403,15 @@ def _load(path: str, _mtime_ns: int) -> Grid:
 
 
 @lru_cache(maxsize=32)
-def _prepared(g: Grid, bit_s: float, isi: bool) -> tuple[Any, list, list, list, np.ndarray]:
-    """`BellhopModel._tables` of a grid: axes, TL, delay and late-fraction lists, the stacked array."""
+def _prepared(g: Grid, bit_s: float, isi: bool) -> tuple[Any, list, list, list, Paths, np.ndarray]:
+    """`BellhopModel._tables` of a grid: axes, TL, delay and late-fraction lists, where its first arrival
+    changes path, the stacked array."""
     late = g.late_fraction(np.repeat(g.sd, len(g.rd) * len(g.rr)), np.tile(np.repeat(g.rd, len(g.rr)), len(g.sd)),
                            np.tile(g.rr, len(g.sd) * len(g.rd)), bit_s).reshape(g.tl.shape)
     if not isi:
         late = np.zeros_like(late)
     return ((g.sd.tolist(), g.rd.tolist(), g.rr.tolist()), g.tl.tolist(), g.delay.tolist(), late.tolist(),
-            np.stack([g.tl, g.delay, late], axis=-1))
+            g.paths(), np.stack([g.tl, g.delay, late], axis=-1))
 
 
 def mean_speeds(profile: Any, z0: float, z: np.ndarray) -> np.ndarray:

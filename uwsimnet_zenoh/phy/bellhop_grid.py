@@ -187,6 +187,8 @@ class Grid:
                  spread: np.ndarray, late: np.ndarray) -> None:
         self.sd, self.rd, self.rr = (np.asarray(a, dtype=float) for a in (sd, rd, rr))
         self.tl, self.delay, self.spread, self.late = (np.asarray(a, dtype=float) for a in (tl, delay, spread, late))
+        self._changes: np.ndarray | None = None
+        self._paths: Paths | None = None
 
     def save(self, path: str | Path) -> None:
         tmp = f"{path}.tmp{os.getpid()}.npz"
@@ -210,11 +212,38 @@ class Grid:
         b = _trilinear(self.sd, self.rd, self.rr, self.late[..., m + 1], zs, zr, r)
         return (1 - w) * a + w * b
 
+    def path_changes(self) -> np.ndarray:
+        """Per grid cell (source-depth, receiver-depth and range interval; one along an axis of one point):
+        whether its 8 corners' first arrivals differ by more than one path's travel time can across the cell
+        (`path_bound`), i.e. whether the first arrival changes path in it (a shadow's edge: the direct path at
+        one corner, the bottom bounce a second later at the next)."""
+        if self._changes is None:
+            d = self.delay
+            lo, hi = d, d
+            for ax in range(3):
+                if d.shape[ax] > 1:
+                    a, b = np.take(lo, range(d.shape[ax] - 1), ax), np.take(lo, range(1, d.shape[ax]), ax)
+                    c, e = np.take(hi, range(d.shape[ax] - 1), ax), np.take(hi, range(1, d.shape[ax]), ax)
+                    lo, hi = np.minimum(a, b), np.maximum(c, e)
+            steps = [np.diff(a) if len(a) > 1 else np.zeros(1) for a in (self.sd, self.rd, self.rr)]
+            bound = path_bound(steps[0][:, None, None], steps[1][None, :, None], steps[2][None, None, :])
+            with np.errstate(invalid="ignore"):
+                self._changes = hi - lo > bound
+        return self._changes
+
+    def paths(self) -> Paths:
+        """`Paths.of` this grid, computed once."""
+        if self._paths is None:
+            self._paths = Paths.of(self)
+        return self._paths
+
     def lookup(self, zs: Any, zr: Any, r: Any) -> tuple[np.ndarray, np.ndarray]:
-        """TL and delay at source depths zs, receiver depths zr, ranges r (arrays): nan beyond the ranges."""
+        """TL and delay at source depths zs, receiver depths zr, ranges r (arrays): nan beyond the ranges; the
+        delay within one path (`same_path`)."""
         zs, zr, r = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (zs, zr, r))
         out_tl = _trilinear(self.sd, self.rd, self.rr, self.tl, zs, zr, r)
-        out_dl = _trilinear(self.sd, self.rd, self.rr, self.delay, zs, zr, r)
+        out_dl = same_path(self.sd, self.rd, self.rr, self.delay, self.paths(), zs, zr, r,
+                           _trilinear(self.sd, self.rd, self.rr, self.delay, zs, zr, r))
         beyond = (r > self.rr[-1]) | (r < self.rr[0])
         out_tl[beyond] = np.nan
         out_dl[beyond] = np.nan
@@ -227,6 +256,123 @@ def _axis(ax: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     q = np.clip(q, ax[0], ax[-1])
     i = np.clip(np.searchsorted(ax, q, side="right") - 1, 0, len(ax) - 2)
     return i, (q - ax[i]) / (ax[i + 1] - ax[i])
+
+
+SLOWEST_C = 1400.0
+"""m/s, below any sea water's sound speed: along one path, the travel time changes by at most the distance
+an end moves over the sound speed there (the eikonal's gradient is 1/c)."""
+
+PATH_SLACK_S = 1e-3
+"""s added to that bound: Bellhop's arrival times along one path scatter by its beams' sampling, far less."""
+
+
+def path_bound(d_sd: Any, d_rd: Any, d_rr: Any) -> Any:
+    """The most one path's first arrival can change across a grid cell of these steps (m), twice over: moving
+    the source by d_sd, the receiver by (d_rd, d_rr)."""
+    return 2.0 * (d_sd + np.hypot(d_rd, d_rr)) / SLOWEST_C + PATH_SLACK_S
+
+
+class Paths:
+    """Where a grid's first arrival changes path, and what to interpolate there (`same_path`): per grid cell
+    (`Grid.path_changes`) its row in `along`, else -1; per such cell, its bound (`path_bound`) and, for each
+    of its 8 corners taken as the reference, the 8 corners' times on the reference's path: a corner on
+    another path replaced by the reference's time extrapolated along its path (per axis, the slope toward a
+    neighbour on the same path: the cell's other end, else the far side; else none).  Corners are numbered
+    4 a + 2 b + c (a, b, c: 0 at the cell's low end, 1 at its high end of source depth, receiver depth,
+    range).  Computed once per grid; `stack` joins the grids of one cell's bearing sectors."""
+
+    def __init__(self, row: np.ndarray, bound: np.ndarray, along: np.ndarray) -> None:
+        self.row, self.bound, self.along = row, bound, along
+        self.row_list, self.bound_list, self.along_list = row.tolist(), bound.tolist(), along.tolist()
+
+    @classmethod
+    def of(cls, g: Grid) -> Paths:
+        changes = g.path_changes()
+        cells = np.argwhere(changes)
+        row = np.full(changes.shape, -1, dtype=int)
+        row[tuple(cells.T)] = np.arange(len(cells))
+        axes = (g.sd, g.rd, g.rr)
+        lo = [cells[:, a] for a in range(3)]
+        hi = [np.minimum(x + 1, len(ax) - 1) for x, ax in zip(lo, axes, strict=True)]
+        ends = [[lo[a], hi[a]] for a in range(3)]
+        corner = [tuple(ends[a][(m >> (2 - a)) & 1] for a in range(3)) for m in range(8)]
+        val = np.stack([g.delay[c] for c in corner], axis=1)                      # (cells, 8)
+        bound = path_bound(*(axes[a][hi[a]] - axes[a][lo[a]] for a in range(3)))
+        along = np.empty((len(cells), 8, 8))
+        for ref in range(8):
+            near = corner[ref]
+            dn = val[:, ref]
+            slope = []
+            for a, ax in enumerate(axes):
+                n = near[a]
+                toward = np.where(n == lo[a], hi[a], lo[a])
+                got, done = np.zeros(len(cells)), np.zeros(len(cells), dtype=bool)
+                for nb in (toward, 2 * n - toward):                 # the cell's other end, else the far side
+                    ok = (nb != n) & (nb >= 0) & (nb < len(ax)) & ~done
+                    nb = np.clip(nb, 0, len(ax) - 1)
+                    d = g.delay[tuple(nb if b == a else near[b] for b in range(3))]
+                    step = np.where(ok, ax[nb] - ax[n], 1.0)
+                    with np.errstate(invalid="ignore"):
+                        same = ok & (np.abs(d - dn) <= path_bound(*(np.abs(step) if b == a else 0.0
+                                                                    for b in range(3))))
+                    got = np.where(same, (d - dn) / step, got)
+                    done |= same
+                slope.append(got)
+            for m, c in enumerate(corner):
+                extrapolated = dn + sum(slope[b] * (axes[b][c[b]] - axes[b][near[b]]) for b in range(3))
+                with np.errstate(invalid="ignore"):
+                    along[:, ref, m] = np.where(np.abs(val[:, m] - dn) > bound, extrapolated, val[:, m])
+        return cls(row, bound, along)
+
+    @classmethod
+    def stack(cls, paths: list[Paths]) -> Paths:
+        """The paths of grids on the same axes, as one: `row` gains a leading axis (the grid), rows offset."""
+        offsets = np.cumsum([0] + [len(p.along) for p in paths[:-1]])
+        rows = np.stack([np.where(p.row >= 0, p.row + o, -1) for p, o in zip(paths, offsets, strict=True)])
+        return cls(rows, np.concatenate([p.bound for p in paths]), np.concatenate([p.along for p in paths]))
+
+
+def reference(val: list[float], wt: list[float], bound: float) -> int:
+    """The corner whose path a query follows: the nearest (the largest weight), unless the corners on other
+    paths weigh more together; then the nearest of those."""
+    ref = max(range(8), key=wt.__getitem__)
+    same = [abs(x - val[ref]) <= bound for x in val]
+    if sum(w for w, s in zip(wt, same, strict=True) if s) < 0.5:
+        ref = max((m for m in range(8) if not same[m]), key=wt.__getitem__)
+    return ref
+
+
+def same_path(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, delay: np.ndarray, paths: Paths,
+              q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, plain: np.ndarray,
+              lead: np.ndarray | None = None) -> np.ndarray:
+    """The first arrival at each query: `plain` (the trilinear interpolation), except in a cell where the path
+    changes: there, the trilinear interpolation of the corners' times on one path (`reference`, `Paths`), so
+    the time is one a ray takes, never a mix of the direct path's and a bounce's a second later.  A corner
+    with no arrival (nan) still makes the answer nan, as in `plain`.  `lead`: each query's grid in a stack of
+    grids on the same axes (delay and paths stacked)."""
+    (i, f), (j, g), (k, h) = _axis(a0, q0), _axis(a1, q1), _axis(a2, q2)
+    row = paths.row[i, j, k] if lead is None else paths.row[lead, i, j, k]
+    at = np.flatnonzero(row >= 0)
+    if not len(at):
+        return plain
+    row, f, g, h = row[at], f[at], g[at], h[at]
+    i, j, k = i[at], j[at], k[at]
+    hi = [np.minimum(x + 1, len(a) - 1) for x, a in ((i, a0), (j, a1), (k, a2))]
+    ends = [[i, hi[0]], [j, hi[1]], [k, hi[2]]]
+    w = [[1 - f, f], [1 - g, g], [1 - h, h]]
+    v = delay if lead is None else delay[lead[at]]
+    n = np.arange(len(at))
+    val = np.stack([v[tuple(ends[a][(m >> (2 - a)) & 1] for a in range(3)) if lead is None
+                      else (n,) + tuple(ends[a][(m >> (2 - a)) & 1] for a in range(3))] for m in range(8)], axis=1)
+    wt = np.stack([w[0][(m >> 2) & 1] * w[1][(m >> 1) & 1] * w[2][m & 1] for m in range(8)], axis=1)
+    bound = paths.bound[row]
+    ref = np.argmax(wt, axis=1)
+    with np.errstate(invalid="ignore"):
+        same = np.abs(val - val[n, ref][:, None]) <= bound[:, None]
+    ref = np.where((wt * same).sum(axis=1) < 0.5, np.argmax(np.where(same, -1.0, wt), axis=1), ref)
+    out = plain.copy()
+    out[at] = (wt * paths.along[row, ref]).sum(axis=1)
+    return out
 
 
 def _trilinear(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, v: np.ndarray, q0: np.ndarray, q1: np.ndarray,
