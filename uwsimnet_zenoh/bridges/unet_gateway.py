@@ -44,7 +44,8 @@ REPLY_DELAY_S = 0.01
 only after sending the request (Gateway._msg_tx_rx, Gateway.request), so an answer that comes back
 before that is lost (a KeyError or a timeout in the application).  Later writes queue behind it."""
 MAX_BACKLOG = 1 << 20
-"""Bytes waiting for a client that does not read; past it the client is closed (one log line)."""
+"""Bytes waiting for a client that does not read (in the transport and the socket's send queue:
+`ServerClient.waiting`); past it the client is closed (one log line)."""
 
 S = "org.arl.unet.Services."
 AGENTS: dict[str, tuple[str, ...]] = {
@@ -488,12 +489,13 @@ class _Client(ServerClient):
         t = self.transport
         if t is None or t.is_closing():
             return
-        if t.get_write_buffer_size() > MAX_BACKLOG:
+        waiting = self.waiting()
+        if waiting > MAX_BACKLOG:
             if not self.gone:
                 self.gone = True
                 self.gw.counters["slow_client"] += 1
                 log.warning("%s: client %s does not read (%d bytes waiting); closed", self.gw.id, self.peer,
-                            t.get_write_buffer_size())
+                            waiting)
                 t.abort()
             return
         t.write(data)

@@ -14,11 +14,19 @@ import errno
 import logging
 import os
 import socket
+import struct
 import threading
 from collections.abc import Callable, Coroutine
 from typing import Any
 
 from ..errors import UserError
+
+try:
+    import fcntl
+    import termios
+    _OUTQ: int | None = getattr(termios, "TIOCOUTQ", None)     # = SIOCOUTQ on a Linux TCP socket
+except ImportError:                                             # Windows: the transport's buffer only
+    _OUTQ = None
 
 log = logging.getLogger("uwsimnet.drivers")
 
@@ -218,6 +226,20 @@ class ServerClient(asyncio.Protocol):
     def close(self) -> None:
         if self.transport is not None:
             self.transport.close()
+
+    def waiting(self) -> int:
+        """Bytes written to the peer and not yet taken by it: the transport's buffer and, where the OS says
+        (Linux's SIOCOUTQ), the socket's send queue.  The kernel's queue alone grows to megabytes (send-buffer
+        autotuning) before the transport buffers anything, so a peer that does not read is seen only with it."""
+        t = self.transport
+        if t is None:
+            return 0
+        n = t.get_write_buffer_size()
+        sock = t.get_extra_info("socket")
+        if sock is not None and _OUTQ is not None:
+            with contextlib.suppress(OSError, ValueError):
+                n += struct.unpack("i", fcntl.ioctl(sock.fileno(), _OUTQ, b"\0\0\0\0"))[0]
+        return n
 
 
 class TcpServer:
