@@ -368,7 +368,9 @@ def test_malformed_messages_leave_the_broker_serving(shared, procs):
     assert len(reasons) == len(garbage) + len(wrong) + 2
     st = app.call(cmd="wait_status", id="delta-m", tag=big["tag"])
     assert (st["event"], st["reason"]) == ("dropped", "size")
-    unknown = app.call(cmd="statuses", id="nosuch-m")
+    deadline = time.monotonic() + 20   # its status comes on its own key, maybe after delta-m's: wait for it
+    while not (unknown := app.call(cmd="statuses", id="nosuch-m")) and time.monotonic() < deadline:
+        time.sleep(0.05)
     assert [(s["event"], s["reason"]) for s in unknown] == [("dropped", "unknown")]
 
     # ... and the broker still serves: a good frame goes through, counters tell what happened
