@@ -26,6 +26,7 @@ unetpy = pytest.importorskip("unetpy", reason="unetpy is in the dev extra (pip i
 from test_broker_e2e import UWSIMNET, Broker, Proc, device_xml, free_port, scene_xml, stop_all  # noqa: E402
 from unetpy import DatagramNtf, Protocol, RxFrameNtf, Services, TxFrameNtf, TxFrameReq, UnetSocket  # noqa: E402
 
+from uwsimnet_zenoh.bridges import unet_gateway  # noqa: E402
 from uwsimnet_zenoh.drivers.evologics.emulator import im_duration_us  # noqa: E402
 from uwsimnet_zenoh.formats.evologics_at.events import IM_MAX  # noqa: E402
 
@@ -242,10 +243,8 @@ def test_bad_clients_get_one_log_line_and_the_others_are_served(net):
             try:
                 lazy.sendall(req * 200)
                 sent += 200
-            except TimeoutError as e:          # the gateway reads slowly: keep asking until it closes it
-                why = repr(e)
-            except OSError as e:               # the gateway closed it: its log line follows on stderr
-                why = repr(e)
+            except OSError as e:               # the gateway closed it (its log line follows on stderr), or
+                why = repr(e)                  # the send timed out: the gateway's stall rule closes it then
                 break
         while time.monotonic() < deadline and not any("does not read" in x for x in gw.err):
             time.sleep(0.05)
@@ -261,6 +260,36 @@ def test_bad_clients_get_one_log_line_and_the_others_are_served(net):
                     ("for agent 'uwlink'", 1), ("unknown action 'teleport'", 1), ("does not read", 1)):
         assert sum(what in x for x in gw.err) == n, (what, gw.err[-20:])
     assert net["broker"].p.poll() is None and gw.p.poll() is None
+
+
+def test_a_client_that_takes_nothing_is_closed_after_the_stall_time(net):
+    """A few answers past what the client's socket takes, and nothing read: no backlog limit is reached, but
+    after STALL_S with none of it taken the gateway closes the client (one line), and serves the others."""
+    if net["kind"] != "sim":
+        pytest.skip("once is enough")
+    gw = net["gw"]
+    before = sum("none taken for" in x for x in gw.err)
+    lazy = socket.socket()
+    lazy.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    lazy.settimeout(10)
+    lazy.connect(("127.0.0.1", net["ports"]["A"]))
+    req = json.dumps({"action": "send", "message": {"clazz": "org.arl.fjage.param.ParameterReq", "data": {
+        "msgID": "s", "perf": "REQUEST", "recipient": "phy", "sender": "stalled", "index": -1}}}).encode() + b"\n"
+    t0 = time.monotonic()
+    try:
+        lazy.sendall(req * 100)                         # ~90 kB of answers: far below the 1 MiB limit
+        deadline = t0 + 120
+        while time.monotonic() < deadline and sum("none taken for" in x for x in gw.err) == before:
+            time.sleep(0.1)
+        assert sum("none taken for" in x for x in gw.err) == before + 1, gw.err[-5:]
+        assert time.monotonic() - t0 >= unet_gateway.STALL_S
+        with sock(net, "A") as a, sock(net, "B") as b:         # the others: served
+            b.bind(Protocol.USER)
+            assert a.send(b"after the stall", to=31, protocol=Protocol.USER)
+            ntf = b.receive()
+            assert ntf is not None and payload(ntf) == b"after the stall"
+    finally:
+        lazy.close()
 
 
 def test_bad_command_lines_are_one_line_errors(net):

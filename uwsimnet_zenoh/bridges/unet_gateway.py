@@ -46,6 +46,9 @@ before that is lost (a KeyError or a timeout in the application).  Later writes 
 MAX_BACKLOG = 1 << 20
 """Bytes waiting for a client that does not read (in the transport and the socket's send queue:
 `ServerClient.waiting`); past it the client is closed (one log line)."""
+STALL_S = 30.0
+"""A client that takes none of what waits for it for this long (wall s) is closed too (one log line): its
+requests may never reach us to make more wait (a client's TCP backing off while it does not read)."""
 
 S = "org.arl.unet.Services."
 AGENTS: dict[str, tuple[str, ...]] = {
@@ -423,6 +426,8 @@ class _Client(ServerClient):
         self.gone = False
         self._held: deque[tuple[float, bytes]] = deque()
         self._quiet_until = 0.0         # loop time before which nothing may follow the last answer
+        self._watch: tuple[float, int] | None = None     # (since, bytes taken then) while bytes wait
+        self._written = 0
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         if self.accept(transport, self.gw.closing):
@@ -499,6 +504,31 @@ class _Client(ServerClient):
                 t.abort()
             return
         t.write(data)
+        self._written += len(data)
+        if self._watch is None:
+            self._watch = (self.gw._io.loop.time(), self._written - self.waiting())
+            self.gw._io.loop.call_later(1.0, self._check)
+
+    def _check(self) -> None:
+        """Once a second while bytes wait for the client: closed when it has taken none for STALL_S."""
+        t, w = self.transport, self.waiting()
+        if self._watch is None or t is None or t.is_closing() or w == 0:
+            self._watch = None
+            return
+        now, taken = self.gw._io.loop.time(), self._written - w
+        since, before = self._watch
+        if taken > before:                               # it reads: start again from here
+            since = now
+        elif now - since >= STALL_S and not self.gone:
+            self.gone = True
+            self.gw.counters["slow_client"] += 1
+            log.warning("%s: client %s does not read (%d bytes waiting, none taken for %.0f s); closed", self.gw.id,
+                        self.peer, w, now - since)
+            t.abort()
+            self._watch = None
+            return
+        self._watch = (since, taken)
+        self.gw._io.loop.call_later(1.0, self._check)
 
 
 def _int(x: Any) -> bool:
