@@ -42,13 +42,12 @@ from .models import DistanceModel
 ArrayLike: TypeAlias = float | np.ndarray
 Absorption: TypeAlias = str | float | Callable[[np.ndarray], np.ndarray]
 
-__all__ = [
-    "AcousticChannelParams", "AcousticLink", "AcousticModemParams", "MODULATIONS", "PRESETS", "ber_bfsk_coherent",
-    "ber_bfsk_noncoherent", "ber_bpsk", "ber_bpsk_rayleigh", "ber_dpsk", "calibrate_margin", "db_to_linear",
-    "ebn0_db", "erfc", "francois_garrison_db_per_km", "linear_to_db", "noise_level_db", "noise_psd_db",
-    "per_from_ber", "required_ebn0_db", "snr_db", "sound_speed_francois_garrison", "sound_speed_mackenzie",
-    "source_level_db", "thorp_db_per_km", "transmission_loss_db",
-]
+__all__ = ["AcousticChannelParams", "AcousticLink", "AcousticModemParams", "MODULATIONS", "PRESETS",
+           "ber_bfsk_coherent", "ber_bfsk_noncoherent", "ber_bpsk", "ber_bpsk_rayleigh", "ber_dpsk",
+           "calibrate_margin", "db_to_linear", "ebn0_db", "erfc", "francois_garrison_db_per_km", "linear_to_db",
+           "noise_level_db", "noise_psd_db", "per_from_ber", "required_ebn0_db", "snr_db",
+           "sound_speed_francois_garrison", "sound_speed_mackenzie", "source_level_db", "thorp_db_per_km",
+           "transmission_loss_db"]
 
 
 def _out(x: np.ndarray) -> ArrayLike:
@@ -544,6 +543,8 @@ class AcousticLink(DistanceModel):
         """Received level RL = SL - TL, dB re 1 uPa."""
         return _out(self.sl_db - _f(self.transmission_loss_db(distance_m)))
 
+    levels = received_level_db      # the channel model's levels (phy.models.DistanceModel): in the trace
+
     def received_power(self, distance_m: ArrayLike) -> np.ndarray:
         """Received power, linear, uPa^2 (10^(RL/10)), at each distance (m, clamped to >= 1 m): a new array.
 
@@ -602,18 +603,15 @@ class AcousticLink(DistanceModel):
         ``signal_rl_db``: received level of the wanted frame, dB re 1 uPa.  ``interferer_rl_dbs``: received
         levels of the overlapping frames, dB re 1 uPa, summed over the last axis (an empty sequence gives
         the SNR).  Interference is added to the noise in linear power units; the directivity index lowers
-        the (isotropic) noise only.
-        """
+        the (isotropic) noise only."""
         s = _f(signal_rl_db)
         i = _f(interferer_rl_dbs)
         interf = np.power(10.0, 0.1 * i).sum(axis=-1) if i.size else 0.0
         return _out(s - 10.0 * np.log10(self._noise_lin + interf))
 
     def per_from_sinr(self, sinr_db: ArrayLike, size_bytes: int) -> ArrayLike:
-        """PER of a ``size_bytes`` frame received at ``sinr_db`` (dB), interference treated as Gaussian noise.
-
-        ``per_from_sinr(sinr_db(received_level_db(d)), L) == per(d, L)``.
-        """
+        """PER of a ``size_bytes`` frame received at ``sinr_db`` (dB), interference treated as Gaussian noise:
+        ``per_from_sinr(sinr_db(received_level_db(d)), L) == per(d, L)``."""
         g = np.power(10.0, 0.1 * (_f(sinr_db) + self._sinr_to_ebn0))
         b = np.asarray(self._ber(g))
         with np.errstate(divide="ignore"):
@@ -722,8 +720,7 @@ class FixedBerLink(DistanceModel):
     """An `AcousticLink` whose noise-limited bit error rate is a constant (legacy ``bitErrorRate``).
 
     per(d, L) = 1 - (1 - BER)^(8L) at every distance; the received power, the noise and PER from SINR
-    (capture) stay the physics of the wrapped link, with PER(SINR) never below the fixed PER.
-    """
+    (capture) stay the physics of the wrapped link, with PER(SINR) never below the fixed PER."""
 
     __slots__ = ("link", "ber")
     reports_power = True
@@ -741,6 +738,9 @@ class FixedBerLink(DistanceModel):
 
     def received_power(self, distance_m: np.ndarray | float) -> np.ndarray:
         return self.link.received_power(distance_m)
+
+    def levels(self, distance_m: np.ndarray | float) -> ArrayLike:
+        return self.link.received_level_db(distance_m)
 
     @property
     def noise_power(self) -> float:
