@@ -32,7 +32,8 @@ def device(name: str, addr: int) -> str:
 def scene_text(channel: str = "<absorption>thorp</absorption>") -> str:
     vehicles = f"<vehicle><name>buoy</name><position>0 0 0</position>{device('buoy', 1)}</vehicle>"
     for name, (addr, p) in AUVS.items():
-        vehicles += f"<vehicle><name>{name}</name><position>{p[0]} {p[1]} {p[2]}</position>{device(name, addr)}</vehicle>"
+        vehicles += (f"<vehicle><name>{name}</name><position>{p[0]} {p[1]} {p[2]}</position>"
+                     f"{device(name, addr)}</vehicle>")
     flows = "".join(f"<flow><name>{n}</name><src>{n}</src><dst>1</dst><size>64</size><interval>{7 + i}</interval>"
                     f"<start>{i}</start></flow>" for i, n in enumerate(AUVS))
     return ('<?xml version="1.0"?><UWSimScene><simulation><duration>200</duration></simulation>'
@@ -51,13 +52,18 @@ def received_level(d: float) -> float:
     return SL - (K * 10 * math.log10(d) + thorp_db_per_km(F_KHZ) * d / 1000)
 
 
-def run(tmp_path, suffix: str, text: str | None = None) -> list[dict]:
-    sc = tmp_path / "still.xml"
-    sc.write_text(scene_text() if text is None else text)
-    out = tmp_path / f"still{suffix}"
-    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(sc), "--trace", str(out)],
-                       capture_output=True, text=True, timeout=300)
+def cli(*args: str) -> str:
+    r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", *args], capture_output=True, text=True,
+                       timeout=300)
     assert r.returncode == 0, r.stderr
+    return r.stdout
+
+
+def run(tmp_path, suffix: str) -> list[dict]:
+    sc = tmp_path / "still.xml"
+    sc.write_text(scene_text())
+    out = tmp_path / f"still{suffix}"
+    cli("run", str(sc), "--trace", str(out))
     return list(read_trace(out)[1])
 
 
@@ -90,15 +96,35 @@ def test_the_columnar_trace_says_the_same_levels(tmp_path):
 
 def test_a_model_without_a_level_writes_no_level(tmp_path):
     """The ocean model gives a Doppler factor and no level; a CustomCommsDevice's rateErrorModel gives neither."""
-    from tests.test_rx_details import scene_text as moving      # noqa: PLC0415 - the ocean scene of #35
+    from tests.test_rx_details import scene_text as moving  # noqa: PLC0415 - the ocean scene of #35
 
     for text in (moving("none"), moving("none").replace("<channelModel><name>ocean</name></channelModel>", "")):
         sc = tmp_path / "m.xml"
         sc.write_text(text)
         out = tmp_path / "m.jsonl"
-        r = subprocess.run([sys.executable, "-m", "uwsimnet_zenoh.cli", "run", str(sc), "--trace", str(out)],
-                           capture_output=True, text=True, timeout=300)
-        assert r.returncode == 0, r.stderr
+        cli("run", str(sc), "--trace", str(out))
         lines = out.read_text().splitlines()[1:]
         assert sum('"ev":"rx"' in ln for ln in lines) >= 14
         assert all("level" not in json.loads(ln) for ln in lines)
+        assert "links" not in json.loads(cli("report", "--json", str(out)))   # and the report has no column
+        assert "level dB" not in cli("report", str(out))
+
+
+@pytest.mark.parametrize("suffix", [".jsonl", ".arrow"])
+def test_the_report_gives_the_mean_received_level_per_link(tmp_path, suffix):
+    if suffix == ".arrow":
+        pytest.importorskip("pyarrow")
+    sc = tmp_path / "still.xml"
+    sc.write_text(scene_text())
+    out = tmp_path / f"still{suffix}"
+    cli("run", str(sc), "--trace", str(out))
+    links = json.loads(cli("report", "--json", str(out)))["links"]
+    where = {"buoy": BUOY} | {n: p for n, (_, p) in AUVS.items()}
+    rx = [r for r in read_trace(out)[1] if r["ev"] == "rx"]
+    assert len(links) >= 6 and sum(x["received"] for x in links) == len(rx)
+    for x in links:         # still ends: every frame of a link at one distance, one level
+        n = sum(r["dev"] == x["dev"] and r["src"] == AUVS.get(x["src"], (1,))[0] for r in rx)
+        expect = received_level(math.dist(where[x["src"]], where[x["dev"]]))
+        assert x["received"] == n and abs(x["mean_db"] - expect) <= 0.0005 + 1e-9, (x, expect)
+        assert x["min_db"] <= x["mean_db"] <= x["max_db"]
+    assert "level dB" in cli("report", str(out))
