@@ -543,7 +543,11 @@ class AcousticLink(DistanceModel):
         """Received level RL = SL - TL, dB re 1 uPa."""
         return _out(self.sl_db - _f(self.transmission_loss_db(distance_m)))
 
-    levels = received_level_db      # the channel model's levels (phy.models.DistanceModel): in the trace
+    def levels(self, distances: ArrayLike | list[float]) -> list[float]:
+        """RL = SL - TL (dB re 1 uPa) at each distance (>= 1 m), a list: the model's levels, the trace's `level`."""
+        ds = distances if isinstance(distances, list) else np.asarray(distances, dtype=float).ravel().tolist()
+        sl, k10, a, log10 = self.sl_db, self._k10, self._alpha_per_m, math.log10
+        return [sl - (k10 * log10(x) + a * x) for x in (d if d > 1.0 else 1.0 for d in ds)]
 
     def received_power(self, distance_m: ArrayLike) -> np.ndarray:
         """Received power, linear, uPa^2 (10^(RL/10)), at each distance (m, clamped to >= 1 m): a new array.
@@ -570,10 +574,8 @@ class AcousticLink(DistanceModel):
         return self._ber(np.power(10.0, 0.1 * _f(self.ebn0_db(distance_m))))
 
     def per(self, distance_m: ArrayLike, size_bytes: int) -> ArrayLike:
-        """Packet error rate of a ``size_bytes`` frame at ``distance_m`` (m): 1 - (1 - BER)^(8 L).
-
-        The simulator's per-frame call: ``distance_m`` is the array of listener distances.
-        """
+        """Packet error rate of a ``size_bytes`` frame at ``distance_m`` (m): 1 - (1 - BER)^(8 L).  The
+        simulator's per-frame call: ``distance_m`` is the array of listener distances."""
         d = np.asarray(distance_m, dtype=float)
         if d.size <= _SMALL:
             return self._per_small(d, size_bytes)
@@ -620,9 +622,7 @@ class AcousticLink(DistanceModel):
     def distance_for_per(self, target_per: float = 0.5, size_bytes: int = 64, lo_m: float = 1.0,
                          hi_m: float = 1e6) -> float:
         """The distance (m) at which the PER of ``size_bytes`` frames reaches ``target_per`` (bisection).
-
-        PER increases monotonically with distance; returns ``hi_m`` if the target is never reached.
-        """
+        PER increases monotonically with distance; returns ``hi_m`` if the target is never reached."""
         if float(self.per(hi_m, size_bytes)) < target_per:
             return hi_m
         lo, hi = math.log(lo_m), math.log(hi_m)
@@ -739,8 +739,8 @@ class FixedBerLink(DistanceModel):
     def received_power(self, distance_m: np.ndarray | float) -> np.ndarray:
         return self.link.received_power(distance_m)
 
-    def levels(self, distance_m: np.ndarray | float) -> ArrayLike:
-        return self.link.received_level_db(distance_m)
+    def levels(self, distance_m: ArrayLike | list[float]) -> list[float]:
+        return self.link.levels(distance_m)
 
     @property
     def noise_power(self) -> float:
