@@ -382,11 +382,11 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
             part = rows[k:k + _PENDING]
             acc.rows(part, [r[0] for r in part])
         if any(v is not None for v in cols["level"]):
-            add = acc.levels.add
+            add_level = acc.levels.add
             for ev, ch, src, dev, lv in zip(cols["ev"], cols["ch"], cols["src"], cols["dev"], cols["level"],
                                             strict=True):
                 if ev == "rx" and lv is not None:
-                    add(ch, src, dev, lv)
+                    add_level(ch, src, dev, lv)
         return acc.result(horizon=horizon, end=end, limit=limit)
     meta, events = open_source(src, meta)
     acc = Accumulator(meta)

@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TypeAlias
+from typing import Any, TypeAlias
 
 import numpy as np
 
@@ -543,7 +543,7 @@ class AcousticLink(DistanceModel):
         """Received level RL = SL - TL, dB re 1 uPa."""
         return _out(self.sl_db - _f(self.transmission_loss_db(distance_m)))
 
-    def levels(self, distances: ArrayLike | list[float]) -> list[float]:
+    def levels(self, distances: Any) -> list[float]:
         """RL = SL - TL (dB re 1 uPa) at each distance (>= 1 m), a list: the model's levels, the trace's `level`."""
         ds = distances if isinstance(distances, list) else np.asarray(distances, dtype=float).ravel().tolist()
         sl, k10, a, log10 = self.sl_db, self._k10, self._alpha_per_m, math.log10
@@ -739,7 +739,7 @@ class FixedBerLink(DistanceModel):
     def received_power(self, distance_m: np.ndarray | float) -> np.ndarray:
         return self.link.received_power(distance_m)
 
-    def levels(self, distance_m: ArrayLike | list[float]) -> list[float]:
+    def levels(self, distance_m: Any) -> list[float]:
         return self.link.levels(distance_m)
 
     @property
