@@ -3,6 +3,7 @@
 (matplotlib; import it explicitly).  Above the core's run path (a run never needs it), below the faces;
 the one core-level room allowed rich and matplotlib."""
 
+from .levels import LinkLevel
 from .metrics import (
     Accumulator,
     Analysis,
@@ -28,12 +29,20 @@ from .read import (
     open_source,
     read_trace,
 )
-from .tables import format_markdown, format_report, format_text, markdown_table, report_json, show_metrics
+from .tables import (
+    format_links,
+    format_markdown,
+    format_report,
+    format_text,
+    markdown_table,
+    report_json,
+    show_metrics,
+)
 
 __all__ = [
     "Accumulator", "Analysis", "ChannelMetrics",
-    "Conservation", "DEFAULT_HORIZON", "DeviceMap", "EVENTS", "FlowMetrics", "InFlight", "RX_REASONS",
-    "Source", "TX_REASONS", "TraceError", "analyse", "conservation", "flow_metrics", "flow_name",
-    "format_markdown", "format_report", "format_text", "is_int", "is_num", "markdown_table", "open_source",
-    "read_trace", "report_json", "show_metrics"
+    "Conservation", "DEFAULT_HORIZON", "DeviceMap", "EVENTS", "FlowMetrics", "InFlight", "LinkLevel",
+    "RX_REASONS", "Source", "TX_REASONS", "TraceError", "analyse", "conservation", "flow_metrics", "flow_name",
+    "format_links", "format_markdown", "format_report", "format_text", "is_int", "is_num", "markdown_table",
+    "open_source", "read_trace", "report_json", "show_metrics"
 ]

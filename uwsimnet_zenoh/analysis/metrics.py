@@ -19,6 +19,7 @@ from typing import Any
 
 from ..kernel.frame import BROADCAST
 from .fold import FlowState, Fold, bin_value, counts
+from .levels import LevelSums, LinkLevel
 from .read import (
     DEFAULT_HORIZON,
     EVENTS,
@@ -220,6 +221,8 @@ class Analysis:
     flows: dict[str, FlowMetrics]
     conservation: Conservation
     channels: dict[Any, ChannelMetrics] = field(default_factory=dict)
+    links: list[LinkLevel] = field(default_factory=list)
+    """The mean received level per link, when the trace's rx records have a `level` (a trace read back)."""
 
 
 # -- the pass -----------------------------------------------------------------------------------
@@ -259,6 +262,7 @@ class Accumulator:
                       size if is_int(size) else None)
         self.ended: float | None = None     # an `end` record: the run's actual end (stopped early, realtime)
         self._pending: list[tuple[Any, ...]] = []     # records of `add()` not yet taken
+        self.levels = LevelSums()           # rx records' `level` (a trace read back: `add`, `analyse`)
 
     # -- input --
     def add(self, rec: Mapping[str, Any]) -> None:
@@ -270,6 +274,8 @@ class Accumulator:
                 self.ended = float(rec["t"])
             return
         reason, flow, kind = rec.get("reason"), rec.get("flow"), rec.get("kind", "data")
+        if ev == "rx" and "level" in rec:
+            self.levels.add(rec["ch"], rec["src"], rec["dev"], rec["level"])
         pending = self._pending
         pending.append((rec["t"], ev, rec["ch"], rec["dev"], rec["src"], rec.get("dst"), rec["seq"], rec["size"],
                         flow if isinstance(flow, str) else None, kind if isinstance(kind, str) else "data",
@@ -352,7 +358,8 @@ class Accumulator:
         duration = meta.get("duration") if self.ended is None else self.ended
         flows = {s.name: _finish(s, self.mflows.get(s.name), duration if is_num(duration) else None)
                  for s in fold.flows}
-        return Analysis(meta=meta, flows=flows, conservation=cons, channels=self._channels())
+        return Analysis(meta=meta, flows=flows, conservation=cons, channels=self._channels(),
+                        links=self.levels.result(self.devs.tx_dev))
 
 
 def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float = DEFAULT_HORIZON,
@@ -374,6 +381,12 @@ def analyse(src: Source, meta: dict[str, Any] | None = None, *, horizon: float =
         for k in range(0, len(rows), _PENDING):
             part = rows[k:k + _PENDING]
             acc.rows(part, [r[0] for r in part])
+        if any(v is not None for v in cols["level"]):
+            add_level = acc.levels.add
+            for ev, ch, src, dev, lv in zip(cols["ev"], cols["ch"], cols["src"], cols["dev"], cols["level"],
+                                            strict=True):
+                if ev == "rx" and lv is not None:
+                    add_level(ch, src, dev, lv)
         return acc.result(horizon=horizon, end=end, limit=limit)
     meta, events = open_source(src, meta)
     acc = Accumulator(meta)

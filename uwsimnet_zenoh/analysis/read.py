@@ -239,8 +239,9 @@ def read_columns(path: str | PathLike[str]) -> tuple[dict[str, Any], dict[str, l
     if pc.any(pc.and_(drops, pc.is_null(table.column("reason")))).as_py():
         raise TraceError(f"{p}: drop event without a 'reason'")
     cols = {c: table.column(c).to_pylist() for c in COLUMNS}
-    n = table.num_rows       # `doppler` (optional: traces written before it have none)
-    cols["doppler"] = table.column("doppler").to_pylist() if "doppler" in table.column_names else [None] * n
+    n = table.num_rows       # `doppler`, `level` (optional: traces written before them have none)
+    for c in ("doppler", "level"):
+        cols[c] = table.column(c).to_pylist() if c in table.column_names else [None] * n
     return meta, cols
 
 
@@ -248,12 +249,12 @@ def _column_events(cols: dict[str, list[Any]]) -> Iterator[dict[str, Any]]:
     """The records of a columnar trace, as the JSONL trace has them (optional keys only when set)."""
     keys = REQUIRED[:8] + ("flow", "kind")
     for row in zip(*(cols[k] for k in keys), cols["reason"], cols["fifo"], cols["dist"], cols["doppler"],
-                   cols["implicit"], strict=True):
+                   cols["level"], cols["implicit"], strict=True):
         rec = dict(zip(keys, row[:10], strict=True))
-        for k, v in zip(("reason", "fifo", "dist", "doppler"), row[10:14], strict=True):
+        for k, v in zip(("reason", "fifo", "dist", "doppler", "level"), row[10:15], strict=True):
             if v is not None:
                 rec[k] = v
-        if row[14]:
+        if row[15]:
             rec["implicit"] = True
         yield rec
 

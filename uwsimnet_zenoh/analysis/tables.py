@@ -4,10 +4,11 @@ one (`uwsimnet run` and `uwsimnet report`)."""
 from __future__ import annotations
 
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from ..trace.events import finite
+from .levels import LinkLevel
 from .metrics import FlowMetrics
 
 if TYPE_CHECKING:
@@ -112,14 +113,26 @@ def format_report(metrics: Mapping[str, FlowMetrics], title: str | None = "Per-f
     return FlowTable(metrics, title)
 
 
-def show_metrics(metrics: Mapping[str, FlowMetrics]) -> None:
-    """The per-flow table on stdout: rich on a terminal, plain aligned text when piped (rich would squeeze it)."""
+def show_metrics(metrics: Mapping[str, FlowMetrics], links: Sequence[LinkLevel] = ()) -> None:
+    """The per-flow table on stdout: rich on a terminal, plain aligned text when piped (rich would squeeze it);
+    then the received level per link, if there are levels."""
     if sys.stdout.isatty():
         from rich.console import Console  # noqa: PLC0415 - a terminal only (start-up time)
 
         Console().print(format_report(metrics))
     else:
         print(format_text(metrics))
+    if links:
+        print(format_links(links))
+
+
+_LINK_COLUMNS = ("ch", "src", "dev", "rx", "level dB", "min dB", "max dB")
+
+
+def format_links(links: Sequence[LinkLevel]) -> str:
+    """The mean received level per link (its rx records with a `level`) as a plain-text table."""
+    rows = [[str(x.ch), x.src, x.dev, str(x.received), _f(x.mean_db), _f(x.min_db), _f(x.max_db)] for x in links]
+    return _plain(_LINK_COLUMNS, rows, {1, 2})
 
 
 def _plain(header: list[str] | tuple[str, ...], rows: list[list[str]], left: set[int]) -> str:
@@ -146,9 +159,13 @@ def format_text(metrics: Mapping[str, FlowMetrics], width: int | None = None) ->
                             {k for k, i in enumerate(p) if i in _LEFT}) for p in parts)
 
 
-def report_json(metrics: Mapping[str, FlowMetrics]) -> dict[str, Any]:
-    """JSON-ready report: `{"version": 1, "flows": {name: FlowMetrics.to_dict()}}`."""
-    return finite({"version": 1, "flows": {name: m.to_dict() for name, m in metrics.items()}})
+def report_json(metrics: Mapping[str, FlowMetrics], links: Sequence[LinkLevel] = ()) -> dict[str, Any]:
+    """JSON-ready report: `{"version": 1, "flows": {name: FlowMetrics.to_dict()}}`, and `"links"`: [LinkLevel
+    as a dict] when the trace has received levels."""
+    out: dict[str, Any] = {"version": 1, "flows": {name: m.to_dict() for name, m in metrics.items()}}
+    if links:
+        out["links"] = [x.to_dict() for x in links]
+    return finite(out)
 
 
 def markdown_table(header: list[str], rows: list[list[str]]) -> str:

@@ -122,18 +122,18 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     with importing():
-        from ..analysis import TraceError, flow_metrics, report_json, show_metrics  # noqa: PLC0415
+        from ..analysis import TraceError, analyse, report_json, show_metrics  # noqa: PLC0415
 
     if not Path(args.trace).is_file():
         raise UserError(f"{args.trace}: no such trace file")
     try:
-        metrics = flow_metrics(args.trace)
+        a = analyse(args.trace)
     except TraceError as e:
         raise UserError(str(e)) from None
     if args.json:
-        print(json.dumps(report_json(metrics), indent=2, allow_nan=False))
+        print(json.dumps(report_json(a.flows, a.links), indent=2, allow_nan=False))
     else:
-        show_metrics(metrics)
+        show_metrics(a.flows, a.links)
     return 0
 
 

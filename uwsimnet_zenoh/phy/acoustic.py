@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TypeAlias
+from typing import Any, TypeAlias
 
 import numpy as np
 
@@ -42,13 +42,12 @@ from .models import DistanceModel
 ArrayLike: TypeAlias = float | np.ndarray
 Absorption: TypeAlias = str | float | Callable[[np.ndarray], np.ndarray]
 
-__all__ = [
-    "AcousticChannelParams", "AcousticLink", "AcousticModemParams", "MODULATIONS", "PRESETS", "ber_bfsk_coherent",
-    "ber_bfsk_noncoherent", "ber_bpsk", "ber_bpsk_rayleigh", "ber_dpsk", "calibrate_margin", "db_to_linear",
-    "ebn0_db", "erfc", "francois_garrison_db_per_km", "linear_to_db", "noise_level_db", "noise_psd_db",
-    "per_from_ber", "required_ebn0_db", "snr_db", "sound_speed_francois_garrison", "sound_speed_mackenzie",
-    "source_level_db", "thorp_db_per_km", "transmission_loss_db",
-]
+__all__ = ["AcousticChannelParams", "AcousticLink", "AcousticModemParams", "MODULATIONS", "PRESETS",
+           "ber_bfsk_coherent", "ber_bfsk_noncoherent", "ber_bpsk", "ber_bpsk_rayleigh", "ber_dpsk",
+           "calibrate_margin", "db_to_linear", "ebn0_db", "erfc", "francois_garrison_db_per_km", "linear_to_db",
+           "noise_level_db", "noise_psd_db", "per_from_ber", "required_ebn0_db", "snr_db",
+           "sound_speed_francois_garrison", "sound_speed_mackenzie", "source_level_db", "thorp_db_per_km",
+           "transmission_loss_db"]
 
 
 def _out(x: np.ndarray) -> ArrayLike:
@@ -544,6 +543,12 @@ class AcousticLink(DistanceModel):
         """Received level RL = SL - TL, dB re 1 uPa."""
         return _out(self.sl_db - _f(self.transmission_loss_db(distance_m)))
 
+    def levels(self, distances: Any) -> list[float]:
+        """RL = SL - TL (dB re 1 uPa) at each distance (>= 1 m), a list: the model's levels, the trace's `level`."""
+        ds = distances if isinstance(distances, list) else np.asarray(distances, dtype=float).ravel().tolist()
+        sl, k10, a, log10 = self.sl_db, self._k10, self._alpha_per_m, math.log10
+        return [sl - (k10 * log10(x) + a * x) for x in (d if d > 1.0 else 1.0 for d in ds)]
+
     def received_power(self, distance_m: ArrayLike) -> np.ndarray:
         """Received power, linear, uPa^2 (10^(RL/10)), at each distance (m, clamped to >= 1 m): a new array.
 
@@ -569,10 +574,8 @@ class AcousticLink(DistanceModel):
         return self._ber(np.power(10.0, 0.1 * _f(self.ebn0_db(distance_m))))
 
     def per(self, distance_m: ArrayLike, size_bytes: int) -> ArrayLike:
-        """Packet error rate of a ``size_bytes`` frame at ``distance_m`` (m): 1 - (1 - BER)^(8 L).
-
-        The simulator's per-frame call: ``distance_m`` is the array of listener distances.
-        """
+        """Packet error rate of a ``size_bytes`` frame at ``distance_m`` (m): 1 - (1 - BER)^(8 L).  The
+        simulator's per-frame call: ``distance_m`` is the array of listener distances."""
         d = np.asarray(distance_m, dtype=float)
         if d.size <= _SMALL:
             return self._per_small(d, size_bytes)
@@ -602,18 +605,15 @@ class AcousticLink(DistanceModel):
         ``signal_rl_db``: received level of the wanted frame, dB re 1 uPa.  ``interferer_rl_dbs``: received
         levels of the overlapping frames, dB re 1 uPa, summed over the last axis (an empty sequence gives
         the SNR).  Interference is added to the noise in linear power units; the directivity index lowers
-        the (isotropic) noise only.
-        """
+        the (isotropic) noise only."""
         s = _f(signal_rl_db)
         i = _f(interferer_rl_dbs)
         interf = np.power(10.0, 0.1 * i).sum(axis=-1) if i.size else 0.0
         return _out(s - 10.0 * np.log10(self._noise_lin + interf))
 
     def per_from_sinr(self, sinr_db: ArrayLike, size_bytes: int) -> ArrayLike:
-        """PER of a ``size_bytes`` frame received at ``sinr_db`` (dB), interference treated as Gaussian noise.
-
-        ``per_from_sinr(sinr_db(received_level_db(d)), L) == per(d, L)``.
-        """
+        """PER of a ``size_bytes`` frame received at ``sinr_db`` (dB), interference treated as Gaussian noise:
+        ``per_from_sinr(sinr_db(received_level_db(d)), L) == per(d, L)``."""
         g = np.power(10.0, 0.1 * (_f(sinr_db) + self._sinr_to_ebn0))
         b = np.asarray(self._ber(g))
         with np.errstate(divide="ignore"):
@@ -622,9 +622,7 @@ class AcousticLink(DistanceModel):
     def distance_for_per(self, target_per: float = 0.5, size_bytes: int = 64, lo_m: float = 1.0,
                          hi_m: float = 1e6) -> float:
         """The distance (m) at which the PER of ``size_bytes`` frames reaches ``target_per`` (bisection).
-
-        PER increases monotonically with distance; returns ``hi_m`` if the target is never reached.
-        """
+        PER increases monotonically with distance; returns ``hi_m`` if the target is never reached."""
         if float(self.per(hi_m, size_bytes)) < target_per:
             return hi_m
         lo, hi = math.log(lo_m), math.log(hi_m)
@@ -722,8 +720,7 @@ class FixedBerLink(DistanceModel):
     """An `AcousticLink` whose noise-limited bit error rate is a constant (legacy ``bitErrorRate``).
 
     per(d, L) = 1 - (1 - BER)^(8L) at every distance; the received power, the noise and PER from SINR
-    (capture) stay the physics of the wrapped link, with PER(SINR) never below the fixed PER.
-    """
+    (capture) stay the physics of the wrapped link, with PER(SINR) never below the fixed PER."""
 
     __slots__ = ("link", "ber")
     reports_power = True
@@ -741,6 +738,9 @@ class FixedBerLink(DistanceModel):
 
     def received_power(self, distance_m: np.ndarray | float) -> np.ndarray:
         return self.link.received_power(distance_m)
+
+    def levels(self, distance_m: Any) -> list[float]:
+        return self.link.levels(distance_m)
 
     @property
     def noise_power(self) -> float:

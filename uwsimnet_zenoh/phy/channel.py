@@ -330,6 +330,9 @@ class Channel:
             err = sender.error
             if err.by_distance:
                 per = float(err.losses(dist[j:j + 1], frame.size)[0])
+                lv = err.levels(dist[j:j + 1])
+                if lv is not None:
+                    tx.keep_details((j,), None, lv)
             else:
                 ans = err.answer(Query(now, frame, dist[j:j + 1], (j,), self.poses, sender.vehicle_index, self._veh))
                 per = float(ans.per[0])
@@ -366,6 +369,9 @@ class Channel:
             pass
         elif err.by_distance:
             pers = err.losses(far, frame.size)
+            lv = err.levels(far)
+            if lv is not None:
+                tx.keep_details(targets, None, lv)
         else:
             ans = err.answer(Query(now, frame, far, targets, self.poses, sender.vehicle_index, self._veh))
             pers = ans.per
@@ -442,7 +448,7 @@ class Channel:
             return
         if lost or col:
             reason = "mult" if (lost and col) else ("prop" if lost else "col")
-            self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=tx.distance(j))
+            self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=tx.rx(j))
             modem.phy_failed(frame, reason)
         else:
             modem.phy_received(frame, tx.rx(j))
@@ -493,7 +499,7 @@ class Channel:
                 modem.phy_overheard(frame, tx.rx(j))
             return
         if reason is not None:
-            self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=tx.distance(j))
+            self.tracer.emit(self.sched.now, "drop", self.id, modem.id, frame, reason, dist=tx.rx(j))
             modem.phy_failed(frame, reason)
         else:
             if spans:

@@ -229,11 +229,18 @@ class DistanceModel(ChannelModel):
         """The loss probability at each distance for a frame of `size` bytes on air (default: `per`)."""
         return self.per(distances, size)
 
+    def levels(self, distances: Sequence[float]) -> Sequence[float] | None:
+        """The received level (dB) at each distance, or None if the model has none (default): the channel
+        hands it on with each reception (kernel.rx), and the trace writes it (docs/trace-format.md)."""
+        return None
+
     def answer(self, q: Query) -> Answer:
-        return Answer(self.losses(q.distances, q.size))
+        return Answer(self.losses(q.distances, q.size), None, self.levels(q.distances))
 
     def reception(self, tx: State, rx: State, distance: float, t: float, frame: Frame) -> Reception:
-        return Reception(float(self.losses([distance], frame.size)[0]))
+        lv = self.levels([distance])
+        return Reception(float(self.losses([distance], frame.size)[0]), None,
+                         None if lv is None else float(lv[0]))
 
 
 def _probability(p: float) -> float:

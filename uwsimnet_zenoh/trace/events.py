@@ -27,6 +27,7 @@ from .tracer import (
     Records,
     Row,
     Tracer,
+    level,
     record,
     rounded,
 )
@@ -55,6 +56,9 @@ def row_record(t9: float, r: Row) -> Record:
         dop = rx_doppler(dist)
         if dop is not None:
             rec["doppler"] = dop
+        lv = level(dist)
+        if lv is not None:
+            rec["level"] = lv
     if r[13]:
         rec["implicit"] = True
     return rec
@@ -85,7 +89,7 @@ def _dumps(rec: Any) -> str:
 
 class _Line(msgspec.Struct, omit_defaults=True, gc=False):
     """One event as msgspec encodes it: the record's keys in the record's order; the optional ones
-    (reason, fifo, dist, doppler; implicit when False) left out, as `record()` does."""
+    (reason, fifo, dist, doppler, level; implicit when False) left out, as `record()` does."""
 
     t: float
     ev: str
@@ -101,6 +105,7 @@ class _Line(msgspec.Struct, omit_defaults=True, gc=False):
     fifo: int | None = None
     dist: float | None = None
     doppler: float | None = None
+    level: float | None = None
     implicit: bool = False
 
 
@@ -140,18 +145,19 @@ class JsonlSink(Listener):
     def event(self, t: float, ev: str, ch: int, dev: str, frame: Frame, reason: str | None,
               fifo: int | None, dist: float | None, implicit: bool = False) -> None:
         t = round(t, 9)
-        d = dop = None
+        d = dop = lv = None
         plain = 1e-4 <= t < 1e15 or t == 0.0                   # _plain, inlined (per event)
         if dist is not None:
             d = round(float(dist), 3)
             dop = rx_doppler(dist)
-            plain = plain and _plain(d) and (dop is None or _plain(dop))
+            lv = level(dist)
+            plain = plain and _plain(d) and (dop is None or _plain(dop)) and (lv is None or _plain(abs(lv)))
         if not plain:
             self(record(t, ev, ch, dev, frame, reason, fifo, dist, implicit))
             return
         buf = self._buf
         buf.append(_Line(t, ev, ch, dev, frame.src, frame.dst, frame.seq, frame.size, frame.flow, frame.kind,
-                         reason, fifo, d, dop, bool(implicit)))
+                         reason, fifo, d, dop, lv, bool(implicit)))
         if len(buf) >= self._batch:
             self.flush()
 
@@ -200,7 +206,7 @@ class ArrowSink(Listener):
     (and so by `uwsimnet report` and `plot`) when the file name ends in `.arrow`."""
 
     COLUMNS = ("t", "ev", "ch", "dev", "src", "dst", "seq", "size", "flow", "kind", "reason", "fifo", "dist",
-               "implicit", "doppler")
+               "implicit", "doppler", "level")
 
     def __init__(self, path: Any, meta: Record, batch: int = 65536) -> None:
         try:
@@ -211,7 +217,7 @@ class ArrowSink(Listener):
         self._pa = pa
         s, i, f = pa.string(), pa.int64(), pa.float64()
         d = pa.dictionary(pa.int32(), s)
-        types = (f, d, i, d, i, i, i, i, d, d, d, i, f, pa.bool_(), f)
+        types = (f, d, i, d, i, i, i, i, d, d, d, i, f, pa.bool_(), f, f)
         self._types = types
         self.schema = pa.schema([pa.field(n, ty) for n, ty in zip(self.COLUMNS, types, strict=True)],
                                 metadata={"uwsimnet.meta": _dumps(meta)})
@@ -237,6 +243,7 @@ class ArrowSink(Listener):
         c[12].append(None if dist is None else round(float(dist), 3))
         c[13].append(bool(implicit))
         c[14].append(None if dist is None else rx_doppler(dist))
+        c[15].append(None if dist is None else level(dist))
         if len(c[0]) >= self._batch:
             self.flush()
 
@@ -253,6 +260,7 @@ class ArrowSink(Listener):
         c[12].extend(None if d is None else round(float(d), 3) for d in dist)
         c[13].extend(map(bool, cols[13]))
         c[14].extend(None if d is None else rx_doppler(d) for d in dist)
+        c[15].extend(None if d is None else level(d) for d in dist)
         if len(c[0]) >= self._batch:
             self.flush()
 

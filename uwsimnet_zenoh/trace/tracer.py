@@ -38,6 +38,7 @@ from mypy_extensions import mypyc_attr
 from ..kernel.frame import Frame
 from ..kernel.rx import Rx
 from ..kernel.rx import doppler as rx_doppler
+from ..kernel.rx import level_db as rx_level
 
 Record = dict[str, Any]
 
@@ -118,10 +119,23 @@ def _plain(x: Any) -> bool:
     return 1e-4 <= x < 1e15 or x == 0.0
 
 
+def level(dist: Any) -> float | None:
+    """The received level of a trace record (dB re 1 uPa, to 3 decimals as `dist`; a NaN or infinity as None,
+    JSON's null): None when the reception `dist` (kernel.rx) has none."""
+    lv = rx_level(dist)
+    if lv is None:
+        return None
+    lf: float = lv
+    if not math.isfinite(lf):
+        return None
+    return round_fast(lf, 1000.0, 3)
+
+
 def lines(rows: list[Row], t9: list[Any], make: Any) -> tuple[list[Any], list[int]]:
     """The JSONL writer's lines of a batch: `make(t, ev, ch, dev, src, dst, seq, size, flow, kind, reason, fifo,
-    dist, doppler, implicit)` per row (its msgspec struct, trace/events.py) with the time and distance its record
-    says (`t9`, round(float(dist), 3)), the reception's Doppler factor (kernel.rx; None) and `implicit` a bool;
+    dist, doppler, level, implicit)` per row (its msgspec struct, trace/events.py) with the time and distance its
+    record says (`t9`, round(float(dist), 3)), the reception's Doppler factor and received level (kernel.rx;
+    None; the level rounded as the distance) and `implicit` a bool;
     and the indices of the lines with a number msgspec would write otherwise than Python's json (`_plain`),
     which the writer writes with the reference encoder."""
     if len(rows) != len(t9):
@@ -138,18 +152,22 @@ def lines(rows: list[Row], t9: list[Any], make: Any) -> tuple[list[Any], list[in
             plain = _plain(t)
         dist: Any = r[12]
         dop: Any = None
+        lv: Any = None
         if dist is not None:
             if type(dist) is Rx:        # a reception with the channel model's details (kernel.rx)
                 dop = rx_doppler(dist)
+                lv = level(dist)
             d = round_fast(float(dist), 1000.0, 3)
             dist = d
             if plain:
                 plain = 1e-4 <= d < 1e15 or d == 0.0
             if dop is not None and plain:
                 plain = _plain(dop)
+            if lv is not None and plain:
+                plain = _plain(abs(lv))     # msgspec and json write a minus sign alike
         if not plain:
             odd.append(k)
-        out.append(make(t, r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], dist, dop,
+        out.append(make(t, r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], dist, dop, lv,
                         bool(r[13])))
     return out, odd
 
@@ -362,6 +380,9 @@ def record(t: Any, ev: str, ch: int, dev: str, frame: Frame, reason: str | None 
         dop = rx_doppler(dist)
         if dop is not None:
             rec["doppler"] = dop    # the reception's Doppler factor, when the channel model gave one
+        lv = level(dist)
+        if lv is not None:
+            rec["level"] = lv       # its received level, dB re 1 uPa, rounded as `dist` (when the model gave one)
     if implicit:
         rec["implicit"] = True      # rx of a frame addressed to another modem (no MAC: implicit broadcast)
     return rec
