@@ -91,32 +91,54 @@ class Outcomes:
     """The addressee's outcome of unicast frames, from the trace records of the output port's events
     (docs/trace-format.md): `watch(src, seq, sender_dev, fn)`, then every record to `on_trace`; `fn(event,
     reason, t, dist)` is called once, `delivered` for the first `rx` of the frame at another device (kind
-    data, not implicit), `lost` for a `drop` there.  Drops at the sender are its own statuses.  At most
+    data, not implicit), `lost` for a `drop` there.  Drops at the sender are its own statuses.  The record
+    may come before `watch` (the trace and the status that tells the frame's seq are different keys, in no
+    order between them: a loaded machine delivered a 1-byte frame's rx first, and its sender reported
+    FAILED): the last `limit` unwatched outcome records are kept for a `watch` that follows.  At most
     `limit` frames are watched (the oldest forgotten)."""
 
     def __init__(self, limit: int = 10000) -> None:
         self.limit = limit
         self._watch: OrderedDict[tuple[int, int], tuple[str, Callable[..., None]]] = OrderedDict()
+        self._early: OrderedDict[tuple[int, int], list[dict[str, Any]]] = OrderedDict()
+        self._lock = threading.Lock()           # records and statuses come on different Zenoh threads
 
     def watch(self, src: int, seq: int, sender_dev: str, fn: Callable[[str, str | None, float, float | None],
                                                                       None]) -> None:
-        self._watch[(src, seq)] = (sender_dev, fn)
-        while len(self._watch) > self.limit:
-            self._watch.popitem(last=False)
+        with self._lock:
+            early = [r for r in self._early.pop((src, seq), ()) if r.get("dev") != sender_dev]
+            if not early:
+                self._watch[(src, seq)] = (sender_dev, fn)
+                while len(self._watch) > self.limit:
+                    self._watch.popitem(last=False)
+        if early:
+            self._report(early[0], fn)
 
     def forget(self, src: int, seq: int) -> None:
-        self._watch.pop((src, seq), None)
+        with self._lock:
+            self._watch.pop((src, seq), None)
 
     def on_trace(self, rec: dict[str, Any]) -> None:
         ev = rec.get("ev")
         if ev not in ("rx", "drop") or rec.get("kind", "data") != "data" or rec.get("implicit"):
             return
         key = (rec.get("src"), rec.get("seq"))
-        hit = self._watch.get(key)  # type: ignore[arg-type]
-        if hit is None or rec.get("dev") == hit[0]:
-            return
-        del self._watch[key]  # type: ignore[arg-type]
-        hit[1]("delivered" if ev == "rx" else "lost", rec.get("reason"), float(rec.get("t", 0.0)), rec.get("dist"))
+        with self._lock:
+            hit = self._watch.get(key)  # type: ignore[arg-type]
+            if hit is None:
+                self._early.setdefault(key, []).append(rec)  # type: ignore[arg-type]
+                while len(self._early) > self.limit:
+                    self._early.popitem(last=False)
+                return
+            if rec.get("dev") == hit[0]:
+                return
+            del self._watch[key]  # type: ignore[arg-type]
+        self._report(rec, hit[1])
+
+    @staticmethod
+    def _report(rec: dict[str, Any], fn: Callable[..., None]) -> None:
+        fn("delivered" if rec.get("ev") == "rx" else "lost", rec.get("reason"), float(rec.get("t", 0.0)),
+           rec.get("dist"))
 
 
 class ZenohBackend:
@@ -194,7 +216,7 @@ class ZenohBackend:
     def _on_trace(self, sample: zenoh.Sample) -> None:
         with contextlib.suppress(Exception):
             rec = wire.unpack(sample.payload.to_bytes(), wire.MAX_SMALL_MESSAGE)
-            if isinstance(rec, dict):
+            if isinstance(rec, dict) and rec.get("src") == self.address:     # only our frames' outcomes
                 self.tracker.on_trace(rec)
 
     def _on_rx(self, f: Frame) -> None:
@@ -219,13 +241,13 @@ class ZenohBackend:
             return                                  # someone else's frame on this modem
         tag, dst = hit
         self.counters["statuses"] += 1
-        if st.event == "queued" and dst != BROADCAST and st.seq is not None:
-            self.tracker.watch(self.address, st.seq, self.id,
-                               lambda ev, reason, t, dist, tag=tag, seq=st.seq: self._emit(
-                                   BackendStatus(tag, ev, reason, t, seq, self._prop(dist))))
         if st.event == "dropped" and st.seq is not None:
             self.tracker.forget(self.address, st.seq)
         self._emit(BackendStatus(tag, st.event, st.reason, st.t, st.seq if st.seq is not None else -1))
+        if st.event == "queued" and dst != BROADCAST and st.seq is not None:     # after queued: an outcome
+            self.tracker.watch(self.address, st.seq, self.id,                  # already seen follows it
+                               lambda ev, reason, t, dist, tag=tag, seq=st.seq: self._emit(
+                                   BackendStatus(tag, ev, reason, t, seq, self._prop(dist))))
 
     def prop_time(self, dist: float, *, rx: bool = False) -> float:
         """One-way propagation time (s) over `dist` m on this modem's tx channel (rx: its rx channel), as
