@@ -149,7 +149,8 @@ with zenoh.open(conf) as s:
 """
 
 
-@pytest.mark.skip(reason="flaky in the full suite since 2026-12-05 (2 of 3 runs: frames neither received nor in lost_at_edge, or the reader not stopping); issue #36, see that session's note")
+@pytest.mark.skip(reason="flaky in the full suite since 2026-12-05 (2 of 3 runs): frames neither received nor"
+                  " in lost_at_edge, or the reader not stopping; issue #36, that session's note")
 @pytest.mark.parametrize("run_s", [4.0, 14.0])
 def test_a_reading_app_gets_every_frame_the_trace_says_it_received(tmp_path, procs, run_s):  # noqa: F811
     """#41: three modems flooded, one subscriber of every modem's rx SIGSTOPped, one app reading busy0's rx.
