@@ -6,6 +6,7 @@ import ast
 import functools
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -21,6 +22,12 @@ from uwsimnet_zenoh.scene.model import Channel, Device, ErrorModel, Flow, MacSpe
 # check that measures the machine's speed (the per-example deadline and "input generation is slow").
 settings.register_profile("uwsimnet", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("uwsimnet")
+
+# A suite started as a script's background job (`make test &`, no job control) inherits SIGINT ignored (POSIX),
+# and so did every process a test started: helper scripts and the sweep then never stopped on SIGINT (the
+# idle series' runs 5 and 6).  The tests' processes take SIGINT as in an interactive run.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # `pytest -m core`: the tests of the sans-IO core alone (docs/architecture.md), chosen by what a test module
 # imports, so a new test file is classified as it is written: only rooms below the sans-IO line

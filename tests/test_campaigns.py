@@ -139,8 +139,10 @@ def test_an_interrupted_sweep_says_what_is_kept_and_how_to_resume(tmp_path):
     import time
 
     out = tmp_path / "o"
-    p = subprocess.Popen([sys.executable, "-m", "uwsimnet_zenoh.cli", "sweep", str(TWO_NODES), "--seeds",
-                          "1-5000", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # started as a script's background job is (SIGINT ignored, POSIX; `trap "" INT` then exec): it still stops
+    p = subprocess.Popen(["sh", "-c", 'trap "" INT; exec "$0" "$@"', sys.executable, "-m", "uwsimnet_zenoh.cli",
+                          "sweep", str(TWO_NODES), "--seeds", "1-5000", "--out", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not (out / "rows").is_dir() or not any((out / "rows").glob("*.json")):
         assert p.poll() is None, p.communicate()

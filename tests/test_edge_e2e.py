@@ -142,15 +142,16 @@ def rx(smp):
 with zenoh.open(conf) as s:
     sub = s.declare_subscriber(key, rx)
     print("ready", flush=True)
-    sys.stdin.readline()                 # the broker has ended: what it put has arrived or never will
-    with open(out, "w") as fh:
-        json.dump(list(got), fh)
-    print("done", flush=True)
+    for _ in sys.stdin:                  # what it has taken so far, each time it is asked
+        with open(out, "w") as fh:
+            json.dump(list(got), fh)
+        print("done", flush=True)
 """
 
 
-@pytest.mark.skip(reason="flaky in the full suite since 2026-12-05 (2 of 3 runs): frames neither received nor"
-                  " in lost_at_edge, or the reader not stopping; issue #36, that session's note")
+@pytest.mark.skip(reason="Zenoh drops a reading app's copies silently while the stopped consumer holds its"
+                  " link (2 busy loops: 498 of 941 frames, no put waited); the edge cannot see it:"
+                  " docs/runtime.md, #36's note")
 @pytest.mark.parametrize("run_s", [4.0, 14.0])
 def test_a_reading_app_gets_every_frame_the_trace_says_it_received(tmp_path, procs, run_s):  # noqa: F811
     """#41: three modems flooded, one subscriber of every modem's rx SIGSTOPped, one app reading busy0's rx.
@@ -184,20 +185,27 @@ def test_a_reading_app_gets_every_frame_the_trace_says_it_received(tmp_path, pro
         assert b.stop(signal.SIGINT) == 0, b.output()
     finally:
         stalled.p.send_signal(signal.SIGCONT)
-    reader.p.stdin.write("\n")
-    reader.p.stdin.flush()
-    assert reader.next_line(20).strip() == "done"
-    got = {tuple(x) for x in json.loads((tmp_path / "got.json").read_text())}
-    assert got
     lines = (tmp_path / "t.jsonl").read_text().splitlines()
     end = json.loads(lines[-1])
     assert end["ev"] == "end"
     lost = {tuple(x) for x in end.get("lost_at_edge", {}).get("busy0", {}).get("frames", [])}
-    first = min(seq for _, seq in got)
-    recorded = [(r["src"], r["seq"]) for r in map(json.loads, lines[1:-1])
-                if r["ev"] == "rx" and r["dev"] == "busy0" and r["seq"] >= first]
+    rx = [(r["src"], r["seq"]) for r in map(json.loads, lines[1:-1]) if r["ev"] == "rx" and r["dev"] == "busy0"]
+    # what the broker put may still be on its way (socket buffers, the reader's Zenoh queue: ~10 MB here,
+    # 150 frames, behind a reader that a loaded machine slows down): asked again until it has all arrived
+    deadline = time.monotonic() + 60
+    while True:
+        reader.p.stdin.write("\n")
+        reader.p.stdin.flush()
+        assert reader.next_line(20).strip() == "done"
+        got = {tuple(x) for x in json.loads((tmp_path / "got.json").read_text())}
+        assert got
+        first = min(seq for _, seq in got)
+        recorded = [x for x in rx if x[1] >= first]
+        missing = [x for x in recorded if x not in got and x not in lost]
+        if not missing or time.monotonic() > deadline:
+            break
+        time.sleep(0.5)
     assert len(recorded) > 100
-    missing = [x for x in recorded if x not in got and x not in lost]
     assert missing == [], (missing[:20], len(missing), len(recorded))
     out = b.output()
     assert "stalled at the edge:" in out and "Traceback" not in out

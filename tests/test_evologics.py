@@ -408,6 +408,21 @@ def test_data_mode_framing_and_burst_data(world):
     b.close()
 
 
+def test_the_ack_timeout_counts_simulated_time_too(world):
+    """A broker or machine running late brings the outcome late: FAILEDIM waits for `ack_timeout` of simulated
+    time as well as of wall time.  With the simulation paused, 3 s of wall time (6 timeouts) give no FAILEDIM;
+    once it runs again, it comes."""
+    w, emus = world(two_modems(150.0), ack_timeout=0.5)
+    raw = Raw(emus["a-dev"].port)
+    raw.send(b"AT*SENDIM,2,9,ack,hi\n")                              # nobody has address 9
+    assert raw.lines(1, timeout=WAIT) == [b"OK"]
+    w.clock.pause()
+    assert raw.lines(1, timeout=3.0) == [b""]                       # nothing within 3 s
+    w.clock.resume()
+    assert raw.lines(1, timeout=WAIT) == [b"FAILEDIM,9"]
+    raw.close()
+
+
 def test_no_addressee_means_failedim_and_emulator_answers_like_the_device(world, drivers):
     w, emus = world(two_modems(150.0), ack_timeout=0.5)
     raw = Raw(emus["a-dev"].port)

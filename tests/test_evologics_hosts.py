@@ -42,8 +42,10 @@ def modems(tmp_path_factory):
         ports = {}
         for dev in ("a-m", "b-m"):
             ports[dev] = free_port()
+            # every frame here has an addressee: its outcome is the simulation's, never the fallback timeout (a
+            # saturated machine once took over 5 s to bring a delivered burst's outcome)
             emu = Proc([*UWSIMNET, "emulate", "evologics", "--port", str(ports[dev]), "--id", dev, "--world",
-                        WORLD, "--connect", b.endpoint])
+                        WORLD, "--connect", b.endpoint, "--ack-timeout", "60"])
             started.append(emu)
             emu.expect("uwsimnet: emulator evologics ready", 20)
         ports["endpoint"] = b.endpoint

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -242,6 +244,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    _interruptible()
     parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
     try:
@@ -258,4 +261,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+
+
+def _interruptible() -> None:
+    """SIGINT stops every command, however it was started.  A script's background job (`uwsimnet sweep ... &`,
+    no job control) inherits SIGINT ignored (POSIX), and Python then never raises KeyboardInterrupt: a sweep
+    stopped with `kill -INT` ran to its end instead of saying what it kept.  (`run` has its own handlers.)"""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 

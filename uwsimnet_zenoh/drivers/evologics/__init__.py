@@ -31,12 +31,26 @@ def _emulator_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")
     p.add_argument("--interpreter", choices=["at", "net"], default="at",
                    help="at: data and command mode, AT?MODE answers AT; net: command mode only, NET (DUNE)")
+    p.add_argument("--ack-timeout", type=_seconds, default=5.0, metavar="S",
+                   help="FAILED(IM) for a frame with no outcome after S s of wall and of simulated time"
+                        " (default 5)")
+
+
+def _seconds(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not 0 < v < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected seconds > 0, got {text!r}")
+    return v
 
 
 def _start_emulator(args: argparse.Namespace, backend: Any) -> tuple[Any, str]:
     from .emulator import EvoLogicsEmulator  # noqa: PLC0415
 
-    emu = EvoLogicsEmulator(backend, args.host, args.port, interpreter=args.interpreter)
+    emu = EvoLogicsEmulator(backend, args.host, args.port, interpreter=args.interpreter,
+                            ack_timeout=args.ack_timeout)
     try:
         host, port = emu.start()
     except OSError as e:

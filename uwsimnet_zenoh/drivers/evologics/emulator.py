@@ -117,7 +117,8 @@ class _Tx:
     dur_us: int = 0
     report: bool = True  # send DELIVERED/FAILED(IM) for it
     phase: str = "air"   # wait (IMS before its time) | air | ack (ack IM waiting for its acknowledgement)
-    t_sent: float | None = None
+    t_sent: float | None = None     # wall (monotonic) s when it left the air, and the simulation's time then
+    sim_sent: float = 0.0
     done: bool = False
     timers: list[asyncio.TimerHandle] = field(default_factory=list)
 
@@ -128,7 +129,9 @@ class EvoLogicsEmulator:
     `port=0` picks a free port (see `.port` after `start()`).  `bitrate` is used for burst time-on-air
     figures when the backend does not say.  `ack_time` (s): the acknowledgement's time on air before a
     delivery report (None: the modelled IMACK_US); `ack_timeout` (s) after transmission an instant
-    message without an outcome is reported FAILEDIM (addressee absent or out of range).  `interpreter`:
+    message without an outcome is reported FAILEDIM (addressee absent or out of range): once that much wall
+    time and that much simulated time have passed, so a broker or machine running late (its outcome late
+    too) does not turn a delivered frame into a FAILED one.  `interpreter`:
     `at` (the default: data and command mode, `AT?MODE` answers AT) or `net` (command mode only, AT?MODE
     answers NET: what DUNE requires).  docs/drivers.md lists what is reproduced."""
 
@@ -211,7 +214,8 @@ class EvoLogicsEmulator:
                     self._command(c, ev)
                 c.flush_data()
             for tx in list(self._txs.values()):
-                if not tx.done and tx.t_sent is not None and now - tx.t_sent > self.ack_timeout:
+                if (not tx.done and tx.t_sent is not None and now - tx.t_sent > self.ack_timeout
+                        and self.backend.now() - tx.sim_sent > self.ack_timeout):
                     self._finish(tx, False)
 
     # -- time -----------------------------------------------------------------------------------------
@@ -320,7 +324,7 @@ class EvoLogicsEmulator:
             self._note(f"SENDEND,{tx.dst},{_TYPE[tx.kind]},{t0},{tx.dur_us}".encode(), extended=tx.kind != "ims")
         if tx.done:
             return
-        tx.t_sent = time.monotonic()
+        self._sent(tx)
         if tx.report:
             tx.phase = "ack"
         else:
@@ -533,7 +537,7 @@ class EvoLogicsEmulator:
                 self._streaming = None
                 self._io.loop.call_soon(self._pump_stream)
             if ev in ("sent", "transmitted"):    # transmitted: the simulated MAC awaits an ACK
-                tx.t_sent = time.monotonic()
+                self._sent(tx)
                 if not tx.report:
                     self._finish(tx, True)
             elif ev in ("acked", "failed", "dropped"):
@@ -556,6 +560,11 @@ class EvoLogicsEmulator:
                 self._later(tx, tx.dur_us + back + ack, self._ack_end, tx, int(ack), lm)
             else:
                 self._later(tx, tx.dur_us + back + ack, self._finish, tx, False)
+
+    def _sent(self, tx: _Tx) -> None:
+        """The frame has left: its ack timeout starts, on both clocks (see the class docstring)."""
+        tx.t_sent = time.monotonic()
+        tx.sim_sent = self.backend.now()
 
     def _ack_start(self, tx: _Tx) -> None:
         if not tx.done:
