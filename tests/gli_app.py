@@ -128,7 +128,9 @@ class App:
             return self.w.control_all(c["op"], timeout=c.get("timeout", 3.0), **req)
         if op == "raw":
             payload = bytes.fromhex(c["payload_hex"]) if "payload_hex" in c else bytes(c.get("zeros", 0))
-            self.w.session.put(c["key"], payload)
+            # BLOCK as uwsimnet_gli's tx publisher: with DROP a starved sender loses a large put in its own queue
+            # (8 of 200 puts of 200 kB beside 8 busy loops, 0 with BLOCK; zenoh issue #2258)
+            self.w.session.put(c["key"], payload, congestion_control=zenoh.CongestionControl.BLOCK)
             return {"ok": True}
         if op == "token":
             self.tokens[c["key"]] = self.w.session.liveliness().declare_token(c["key"])

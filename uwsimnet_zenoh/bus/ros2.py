@@ -187,7 +187,8 @@ class Ros2Adapter:
                     self.session.put(self.keys.pose(action.vehicle), wire.encode_pose(action.p, q=action.q,
                                                                                       v=action.v))
                 elif isinstance(action, TxRequest):
-                    self.session.put(self.keys.tx(action.dev), wire.encode_tx(action.dst, action.data, action.tag))
+                    self.session.put(self.keys.tx(action.dev), wire.encode_tx(action.dst, action.data, action.tag),
+                                     congestion_control=zenoh.CongestionControl.BLOCK)  # DROP loses it unseen
             return
         try:
             if kind == "rx":
