@@ -45,7 +45,7 @@ conf.insert_json5("connect/endpoints", json.dumps([ep]))
 n = [0]
 with zenoh.open(conf) as s:
     sub = s.declare_subscriber(key, lambda sample: n.__setitem__(0, n[0] + 1))
-    print("ready", flush=True)
+    print("ready", s.zid(), flush=True)
     while True:
         time.sleep(0.2)
         print(n[0], flush=True)
@@ -80,7 +80,7 @@ def test_a_stopped_subscriber_costs_only_its_modem(tmp_path, procs):  # noqa: F8
     script.write_text(STALLED)
     stalled = Proc([sys.executable, str(script), b.endpoint, f"uwsimnet/{world}/modem/busy-m/rx"])
     procs.append(stalled)
-    assert stalled.next_line(15).strip() == "ready"
+    assert stalled.next_line(15).split()[0] == "ready"
     deadline = time.monotonic() + 10
     while int(stalled.next_line(5)) < 50:           # it does receive the flood
         assert time.monotonic() < deadline
@@ -141,7 +141,7 @@ def rx(smp):
     got.append([f.src, f.seq])
 with zenoh.open(conf) as s:
     sub = s.declare_subscriber(key, rx)
-    print("ready", flush=True)
+    print("ready", s.zid(), flush=True)
     for _ in sys.stdin:                  # what it has taken so far, each time it is asked
         with open(out, "w") as fh:
             json.dump(list(got), fh)
@@ -149,17 +149,15 @@ with zenoh.open(conf) as s:
 """
 
 
-@pytest.mark.skip(reason="under load Zenoh closes a starved reading app's transport after a put waited 2 s on"
-                  " it, and what is put until it reconnects is lost unseen by the edge (2 of 23 loaded runs):"
-                  " docs/runtime.md, #36")
 @pytest.mark.parametrize("run_s", [4.0, 14.0])
 def test_a_reading_app_gets_every_frame_the_trace_says_it_received(tmp_path, procs, run_s):  # noqa: F811
     """#41: three modems flooded, one subscriber of every modem's rx SIGSTOPped, one app reading busy0's rx.
     Zenoh lets one put at a time wait for the stopped consumer's link, so the outboxes' puts wait in turn
     (2, 4, 6 ... s: measured, up to that consumer's lease).  Whatever happens, every frame the trace records
     received at busy0 after the app subscribed reached the app, or the trace's end record names it as lost
-    at the edge.  The broker is stopped during the stall (4 s: frames still queued behind it) and after the
-    stopped consumer's lease (14 s)."""
+    at the edge, or Zenoh cut the app off and the trace says so (`disconnected`, with `back`).  The broker
+    is stopped during the stall (4 s: frames still queued behind it) and after the stopped consumer's lease
+    (14 s)."""
     world = "frozen"
     flows = "".join(f"<flow><name>flood{k}</name><src>src{k}</src><dst>{2 * k + 4}</dst><size>64000</size>"
                     f"<interval>0.016</interval></flow>" for k in range(3))
@@ -173,11 +171,13 @@ def test_a_reading_app_gets_every_frame_the_trace_says_it_received(tmp_path, pro
     (tmp_path / "reader.py").write_text(READER)
     stalled = Proc([sys.executable, str(tmp_path / "stalled.py"), b.endpoint, f"uwsimnet/{world}/modem/*/rx"])
     procs.append(stalled)
-    assert stalled.next_line(15).strip() == "ready"
+    word, stalled_zid = stalled.next_line(15).split()
+    assert word == "ready"
     reader = Proc([sys.executable, str(tmp_path / "reader.py"), b.endpoint, f"uwsimnet/{world}/modem/busy0/rx",
                    str(tmp_path / "got.json")], stdin=True)
     procs.append(reader)
-    assert reader.next_line(15).strip() == "ready"
+    word, reader_zid = reader.next_line(15).split()
+    assert word == "ready"
     time.sleep(1.0)
     stalled.p.send_signal(signal.SIGSTOP)
     try:
@@ -206,8 +206,18 @@ def test_a_reading_app_gets_every_frame_the_trace_says_it_received(tmp_path, pro
             break
         time.sleep(0.5)
     assert len(recorded) > 100
-    assert missing == [], (missing[:20], len(missing), len(recorded))
     out = b.output()
+    gone = {e["zid"]: e for e in end.get("disconnected", [])}
+    # under load Zenoh may cut the reading app off (its link's queue full for wait_before_close: docs/runtime.md,
+    # 2 runs of 23 beside two busy loops) and let it back in: what was put meanwhile is lost, and said
+    # (or cut it off for good before the run ended: disconnected, not back)
+    if reader_zid not in gone:
+        assert missing == [], (missing[:20], len(missing), len(recorded), gone)
+    elif "back" in gone[reader_zid]:
+        assert f"cut off: client {reader_zid} for " in out, out
+    # the stopped consumer may be closed (by its lease: not always within 14 s with a put waiting on it), but
+    # stopped, it cannot have come back
+    assert "back" not in gone.get(stalled_zid, {}), gone
     assert "stalled at the edge:" in out and "Traceback" not in out
     # and the frames whose put waited on the stopped consumer (it may not have them) are named with the wait
     stalled = end["stalled_at_edge"]

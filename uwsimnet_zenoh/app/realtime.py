@@ -366,6 +366,10 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                            for dev, e in sorted(summary["edge"].items()) if e.get("stalled_rx")}
                 if stalled:                     # and which waited on a consumer that did not read
                     extra["stalled_at_edge"] = stalled
+                gone = broker.connections.summary()
+                if gone:                        # and who was disconnected: back = cut off by Zenoh
+                    extra["disconnected"] = gone
+                    summary["cut_off"] = broker.connections.cut_off()
             if reason == "duration" and duration is not None:
                 t_stop = min(t_stop, duration)
             if summary["ros2_link"]:            # the links' counters in the trace too (docs/ros2-link.md)
@@ -429,6 +433,10 @@ def _summary(analysis: Any, s: dict[str, Any], net: Any) -> None:
             parts.append(f"{e['refused']} tx refused (ingress lane full, status dropped fifo)")
         console.print(f"lost at the edge: {dev}: {', '.join(parts)} (a consumer did not keep up)", markup=False,
                       soft_wrap=True)
+    for c in s.get("cut_off") or ():
+        console.print(f"cut off: {c['whatami']} {c['zid']} for {c['s']:.1f} s (t={c['t']:.3f}..{c['back']:.3f} s):"
+                      " Zenoh closed its connection (it did not read, or its lease ran out); what was put for it"
+                      " in that time is lost", markup=False, soft_wrap=True)
     for dev, e in sorted((d, e) for d, e in edge.items() if e.get("stalled")):
         parts = ", ".join(f"{n} {kind}" for kind, n in sorted(e["stalled"].items()))
         console.print(f"stalled at the edge: {dev}: {parts} put(s) waited up to {e['stalled_max']:.1f} s (a"
