@@ -28,6 +28,7 @@ import time
 from typing import Any
 
 from ..assembly.outputs import Outputs
+from ..bus.connections import Connections
 from ..bus.router import StopOnSignal
 from ..bus.session import (
     DEFAULT_ENDPOINT,
@@ -271,6 +272,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
         broker = None
         ros = None
         links: list[Any] = []
+        connections = Connections(clock.now)
         meta = net.meta()
         meta.update(clock="realtime", world=world, duration=duration,
                     channels=sorted(net.channels), external_flows=sorted(external))
@@ -288,6 +290,7 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                         out.flush()
                         last_flush[0] = time.monotonic()
                 clock.idle_hooks.append(write_trace)
+            connections.start(session)          # who Zenoh cuts off, for the end record (docs/runtime.md)
             try:
                 broker = Broker(session, net, clock, world=world, channels=channels, foreign=foreign)
                 broker.start()
@@ -366,10 +369,10 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                            for dev, e in sorted(summary["edge"].items()) if e.get("stalled_rx")}
                 if stalled:                     # and which waited on a consumer that did not read
                     extra["stalled_at_edge"] = stalled
-                gone = broker.connections.summary()
-                if gone:                        # and who was disconnected: back = cut off by Zenoh
-                    extra["disconnected"] = gone
-                    summary["cut_off"] = broker.connections.cut_off()
+            connections.close()
+            if gone := connections.summary():   # who was disconnected: `back` = cut off by Zenoh
+                extra["disconnected"] = gone
+                summary["cut_off"] = connections.cut_off()
             if reason == "duration" and duration is not None:
                 t_stop = min(t_stop, duration)
             if summary["ros2_link"]:            # the links' counters in the trace too (docs/ros2-link.md)

@@ -41,7 +41,6 @@ from uwsimnet_gli.wire import Keys, check_chunk, parse
 
 from ..trace.events import Batch, Listener
 from ..trace.tracer import FRAME_EVENTS
-from .connections import Connections
 from .control import Control
 from .endpoint import BLOCK, ModemEndpoint, put_record
 from .hil import RETOKEN, SWAP_IN, SWAP_OUT, HilSwap
@@ -157,8 +156,6 @@ class Broker(Poses, Queries):
         self._started = False
         self._closed = False
         self.control = Control(self)
-        self.connections = Connections(clock.now)
-        """Transports Zenoh closed and opened again: apps cut off for not reading (bus/connections.py)."""
 
     @property
     def real(self) -> set[str]:
@@ -187,7 +184,6 @@ class Broker(Poses, Queries):
         net.tracer.listen(_Output(self), statuses=True)
         ent = self._entities
         cb = _direct
-        self.connections.start(s)
         ent.append(s.declare_subscriber(k.tx_all, cb(self._on_tx_sample)))
         # poses wait in a ring on Zenoh's side, with no Python callback: a swarm publishes its poses in
         # bursts (256 vehicles at once), and 256 callbacks in a row take the interpreter from the engine
@@ -231,7 +227,6 @@ class Broker(Poses, Queries):
                 self.net.tracer.flush()
         self._closed = True
         self._pose_sub = None
-        self.connections.close()
         for e in self._entities:            # no more input
             self._undeclare(e)
         self._entities.clear()
