@@ -28,6 +28,7 @@ import time
 from typing import Any
 
 from ..assembly.outputs import Outputs
+from ..bus import flush
 from ..bus.connections import Connections
 from ..bus.router import StopOnSignal
 from ..bus.session import (
@@ -369,8 +370,13 @@ def _run(scene: Scene, args: Any, duration: float | None, channels: set[int] | N
                            for dev, e in sorted(summary["edge"].items()) if e.get("stalled_rx")}
                 if stalled:                     # and which waited on a consumer that did not read
                     extra["stalled_at_edge"] = stalled
+                # what Zenoh holds for a slow app is dropped when the session closes: give it time (bounded)
+                if unsent := flush.wait():
+                    extra["unsent_at_close"] = summary["unsent_at_close"] = unsent
+                    log.warning("at close, %s: an app did not read what was put for it before the stop (it may"
+                                " be lost)", ", ".join(f"{n} bytes unsent to {p}" for p, n in sorted(unsent.items())))
             connections.close()
-            if gone := connections.summary():   # who was disconnected: `back` = cut off by Zenoh
+            if gone := connections.summary():   # who was disconnected (until now): `back` = cut off by Zenoh
                 extra["disconnected"] = gone
                 summary["cut_off"] = connections.cut_off()
             if reason == "duration" and duration is not None:
@@ -440,6 +446,9 @@ def _summary(analysis: Any, s: dict[str, Any], net: Any) -> None:
         console.print(f"cut off: {c['whatami']} {c['zid']} for {c['s']:.1f} s (t={c['t']:.3f}..{c['back']:.3f} s):"
                       " Zenoh closed its connection (it did not read, or its lease ran out); what was put for it"
                       " in that time is lost", markup=False, soft_wrap=True)
+    for peer, n in sorted((s.get("unsent_at_close") or {}).items()):
+        console.print(f"unsent at close: {n} bytes to {peer} (an app that did not read what was put for it before"
+                      " the stop: it may be lost)", markup=False, soft_wrap=True)
     for dev, e in sorted((d, e) for d, e in edge.items() if e.get("stalled")):
         parts = ", ".join(f"{n} {kind}" for kind, n in sorted(e["stalled"].items()))
         console.print(f"stalled at the edge: {dev}: {parts} put(s) waited up to {e['stalled_max']:.1f} s (a"

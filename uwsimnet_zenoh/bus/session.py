@@ -32,6 +32,14 @@ from the 5 s wait running out (~8.5 s after the stop) to the 10 s lease closing 
 2 s once its buffers are full is cut off, as it would be at 5 s, and the other links never wait."""
 ZENOH_WAIT_BEFORE_CLOSE_US = 5_000_000
 """Zenoh's default of the above (a configuration file that sets another value keeps it)."""
+SHARED_MEMORY = False
+"""Whether this project's sessions pass payloads to apps on the same machine through Zenoh's shared memory
+(Zenoh's `transport/shared_memory/enabled`, default true).  Off: with it, a payload over its threshold is a
+buffer of the putting session, and when that session closes an app that has not yet taken it loses it.  A
+slow app's backlog at the broker's stop went with the broker (the reading-app test: 186 of 316 frames in a
+loaded run; a router putting 300 x 64 kB to an app taking 30 ms each, then closing: 265 of 300 arrive with
+it on, 300 with it off; docs/runtime.md).  A frame has to reach its app whenever the broker stops; frames
+are rarely over the 3 kB threshold, so the copy it saves is small."""
 SWITCH_INTERVAL = 0.0005
 """sys.setswitchinterval for processes with a realtime engine thread (5 ms -> 0.5 ms thread switches)."""
 
@@ -41,6 +49,7 @@ class BusError(UwsimnetError, RuntimeError):
 
 
 _WAIT_BEFORE_CLOSE = "transport/link/tx/queue/congestion_control/block/wait_before_close"
+_SHARED_MEMORY = "transport/shared_memory/enabled"
 
 
 def _json(v: Any) -> str:
@@ -57,7 +66,8 @@ def make_config(mode: str, *, listen: Sequence[str] = (), connect: Sequence[str]
         conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     except zenoh.ZError as e:
         raise BusError(f"{config_file}: {e}") from None
-    settings: dict[str, Any] = {"mode": mode, "scouting/multicast/enabled": False}
+    settings: dict[str, Any] = {"mode": mode, "scouting/multicast/enabled": False,
+                                _SHARED_MEMORY: SHARED_MEMORY}
     if mode == "router":
         settings["adminspace/enabled"] = True          # lets us read back the locators we listen on
         if json.loads(conf.get_json(_WAIT_BEFORE_CLOSE)) == ZENOH_WAIT_BEFORE_CLOSE_US:
